@@ -1,0 +1,1 @@
+"""Graph reconstruction (Path2Graph, Piece2Graph, Pixel2Graph), lane-graph metrics, speed and reports."""

@@ -1,0 +1,56 @@
+"""Typed records that travel between the dataset adapters and `prepare`.
+
+Every pose here is expressed for the BEV ego frame of this project: x to the right, y forward,
+z up, metres (nuScenes: the LIDAR_TOP sensor frame; AV2: the egovehicle frame turned by +90 deg).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Lane:
+    """One lane centerline of a map, in world (city / global) coordinates."""
+
+    id: str
+    xyz: np.ndarray  # (n, 3) float64, in driving direction
+    successors: list[str]
+
+
+@dataclass
+class Camera:
+    name: str
+    image_path: str  # relative to the dataset root
+    intrinsics: np.ndarray  # (3, 3)
+    sensor_to_ego: np.ndarray  # (4, 4), ego = the BEV ego frame
+    width: int
+    height: int
+
+
+@dataclass
+class Frame:
+    frame_id: str  # <dataset>/<log or scene>/<timestamp_ns>
+    dataset: str
+    split: str
+    log_id: str
+    timestamp_ns: int
+    city: str
+    ego_to_world: np.ndarray  # (4, 4) pose of the BEV ego frame in the world frame
+    cameras: list[Camera] = field(default_factory=list)
+    lidar_path: str = ""  # relative to the dataset root; "" where absent
+    lidar_to_ego: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+
+@dataclass
+class Log:
+    """One AV2 log or nuScenes scene: its map lanes and its key frames."""
+
+    dataset: str
+    split: str
+    log_id: str
+    source: str  # the file or folder it was read from, for error messages
+    lanes: list[Lane]
+    frames: list[Frame]

@@ -54,3 +54,4 @@ class Log:
     source: str  # the file or folder it was read from, for error messages
     lanes: list[Lane]
     frames: list[Frame]
+    map_is_2d: bool = False  # nuScenes maps have no heights: crop with the pose's yaw alone

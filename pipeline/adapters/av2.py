@@ -1,0 +1,154 @@
+"""Argoverse 2 sensor dataset: `<root>/<split>/<log_id>/` read through the av2 API."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow.feather as feather
+
+from pipeline.errors import DataError
+from pipeline.geometry import AV2_EGO_FROM_BEV
+from pipeline.records import Camera, Frame, Lane, Log
+
+BEV_FROM_AV2_EGO = np.linalg.inv(AV2_EGO_FROM_BEV)
+RING_CAMERAS = (
+    "ring_front_center", "ring_front_left", "ring_front_right", "ring_side_left",
+    "ring_side_right", "ring_rear_left", "ring_rear_right",
+)  # fmt: skip
+
+
+def find_logs(root: Path, split: str | None) -> list[tuple[str, Path]]:
+    """(split, log folder) of every log under root/<split>/, sorted; root holds the split folders."""
+    if not root.is_dir():
+        raise DataError(root, "root", "is not a folder (expected the folder that holds train/, val/, ...)")
+    splits = [split] if split else sorted(p.name for p in root.iterdir() if p.is_dir())
+    logs = []
+    for name in splits:
+        folder = root / name
+        if not folder.is_dir():
+            raise DataError(folder, f"split {name}", "split folder not found")
+        logs += [(name, d) for d in sorted(folder.iterdir()) if (d / "map").is_dir()]
+    return logs
+
+
+def read_lanes(log_dir: Path) -> tuple[list[Lane], str]:
+    """Centerlines (av2 API, 10 points each) and successors of the log's vector map, and the city."""
+    from av2.map.map_api import ArgoverseStaticMap
+
+    map_dir = log_dir / "map"
+    files = sorted(map_dir.glob("log_map_archive_*.json"))
+    if len(files) != 1:
+        raise DataError(map_dir, "log_map_archive_*.json", f"expected one vector map file, found {len(files)}")
+    try:
+        static_map = ArgoverseStaticMap.from_json(files[0])
+    except Exception as error:  # the av2 parser raises JSONDecodeError, KeyError, TypeError, ...
+        raise DataError(files[0], "vector map", f"cannot be read: {type(error).__name__}: {error}") from error
+    lanes = []
+    for lane_id in sorted(static_map.vector_lane_segments):
+        segment = static_map.vector_lane_segments[lane_id]
+        try:
+            xyz = static_map.get_lane_segment_centerline(lane_id)
+        except Exception as error:
+            raise DataError(files[0], f"lane segment {lane_id}", f"bad boundaries: {error}") from error
+        if not np.isfinite(xyz).all():
+            raise DataError(files[0], f"lane segment {lane_id}", "centerline has non-finite coordinates")
+        lanes.append(Lane(str(lane_id), xyz.astype(np.float64), [str(s) for s in segment.successors or []]))
+    city = files[0].stem.split("____")[-1].split("_")[0] if "____" in files[0].stem else ""
+    return lanes, city
+
+
+def frame_timestamps(log_dir: Path) -> np.ndarray:
+    """Lidar sweep times when the log has sweeps, else the annotation times (10 Hz in both cases)."""
+    lidar = log_dir / "sensors" / "lidar"
+    if lidar.is_dir():
+        return np.array(sorted(int(p.stem) for p in lidar.glob("*.feather")), np.int64)
+    for name in ("annotations.feather", "annotations_with_ego.feather"):
+        if (log_dir / name).is_file():
+            try:
+                column = feather.read_table(log_dir / name, columns=["timestamp_ns"])["timestamp_ns"]
+            except Exception as error:
+                raise DataError(log_dir / name, "timestamp_ns", f"cannot be read: {error}") from error
+            return np.unique(column.to_numpy()).astype(np.int64)
+    raise DataError(log_dir, "frames", "no sensors/lidar/ sweeps and no annotations feather to key frames by")
+
+
+def read_poses(log_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted pose timestamps and the (N, 4, 4) egovehicle-to-city transforms (av2 API)."""
+    from av2.utils.io import read_city_SE3_ego
+
+    path = log_dir / "city_SE3_egovehicle.feather"
+    if not path.is_file():
+        raise DataError(path, "ego poses", "file not found")
+    try:
+        poses = read_city_SE3_ego(log_dir)
+    except Exception as error:
+        raise DataError(path, "ego poses", f"cannot be read: {type(error).__name__}: {error}") from error
+    times = np.array(sorted(poses), np.int64)
+    matrices = np.stack([poses[t].transform_matrix for t in times]) if len(times) else np.zeros((0, 4, 4))
+    bad = ~np.isfinite(matrices).all(axis=(1, 2))
+    if bad.any():
+        raise DataError(path, f"timestamp_ns {times[bad][0]}", "pose has NaN or infinite values")
+    return times, matrices
+
+
+def read_cameras(log_dir: Path) -> dict[str, tuple[np.ndarray, np.ndarray, int, int, np.ndarray]]:
+    """name -> (intrinsics, camera-to-BEV, width, height, sorted image timestamps) for each ring camera."""
+    calibration = log_dir / "calibration"
+    if not (calibration / "intrinsics.feather").is_file():
+        return {}
+    from av2.geometry.camera.pinhole_camera import PinholeCamera
+
+    cameras = {}
+    for name in RING_CAMERAS:
+        folder = log_dir / "sensors" / "cameras" / name
+        if not folder.is_dir():
+            continue
+        try:
+            camera = PinholeCamera.from_feather(log_dir, name)
+        except Exception as error:
+            raise DataError(calibration, f"camera {name}", f"bad calibration: {error}") from error
+        times = np.array(sorted(int(p.stem) for p in folder.glob("*.jpg")), np.int64)
+        cam_to_bev = BEV_FROM_AV2_EGO @ camera.ego_SE3_cam.transform_matrix
+        cameras[name] = (camera.intrinsics.K, cam_to_bev, camera.width_px, camera.height_px, times)
+    return cameras
+
+
+def nearest(times: np.ndarray, t: int) -> int:
+    i = int(np.clip(np.searchsorted(times, t), 1, len(times) - 1)) if len(times) > 1 else 0
+    return i - 1 if len(times) > 1 and t - times[i - 1] <= times[i] - t else i
+
+
+def load_log(root: Path, split: str, log_dir: Path, frame_stride: int = 1) -> Log:
+    lanes, city = read_lanes(log_dir)
+    pose_times, ego_to_city = read_poses(log_dir)
+    if len(pose_times) == 0:
+        raise DataError(log_dir / "city_SE3_egovehicle.feather", "ego poses", "no pose rows")
+    cameras = read_cameras(log_dir)
+    has_lidar = (log_dir / "sensors" / "lidar").is_dir()
+    frames = []
+    for t in frame_timestamps(log_dir)[::frame_stride].tolist():
+        pose = ego_to_city[nearest(pose_times, t)] @ AV2_EGO_FROM_BEV
+        frame_cameras = [
+            Camera(
+                name,
+                str((log_dir / "sensors" / "cameras" / name / f"{times[nearest(times, t)]}.jpg").relative_to(root)),
+                K, cam_to_bev, int(w), int(h),
+            )
+            for name, (K, cam_to_bev, w, h, times) in cameras.items() if len(times)
+        ]  # fmt: skip
+        frames.append(
+            Frame(
+                frame_id=f"av2/{log_dir.name}/{t}",
+                dataset="av2",
+                split=split,
+                log_id=log_dir.name,
+                timestamp_ns=t,
+                city=city,
+                ego_to_world=pose,
+                cameras=frame_cameras,
+                lidar_path=str((log_dir / "sensors" / "lidar" / f"{t}.feather").relative_to(root)) if has_lidar else "",
+                lidar_to_ego=BEV_FROM_AV2_EGO.copy(),
+            )
+        )
+    return Log("av2", split, log_dir.name, str(log_dir), lanes, frames)

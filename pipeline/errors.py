@@ -1,0 +1,7 @@
+"""The one error type of bad input: its message names the file and the record."""
+
+
+class DataError(ValueError):
+    def __init__(self, source: str, record: str, problem: str):
+        self.source, self.record, self.problem = str(source), record, problem
+        super().__init__(f"{source}: {record}: {problem}")

@@ -1,0 +1,118 @@
+"""Crop a map's lane centerlines to the ego frame and build the ground-truth lane graph."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from pipeline.geometry import Range, clip_polylines
+from pipeline.records import Lane
+
+
+@dataclass
+class LaneGraph:
+    """A directed lane graph: vertices (x, y) in metres and straight edges src -> dst."""
+
+    x: np.ndarray  # (V,) float32
+    y: np.ndarray  # (V,) float32
+    src: np.ndarray  # (E,) int32
+    dst: np.ndarray  # (E,) int32
+
+    @property
+    def xy(self) -> np.ndarray:
+        return np.stack([self.x, self.y], axis=1)
+
+    @classmethod
+    def empty(cls) -> LaneGraph:
+        return cls(np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.int32), np.zeros(0, np.int32))
+
+
+@dataclass
+class LaneMap:
+    """The lanes of one map stacked into arrays, so that each frame crops them in a few vector ops."""
+
+    ids: list[str]
+    points: np.ndarray  # (N, 3) world coordinates of every centerline point
+    offsets: np.ndarray  # (L + 1,) lane i is points[offsets[i]:offsets[i + 1]]
+    centers: np.ndarray  # (L, 2) bounding-circle centre of each lane
+    radii: np.ndarray  # (L,) bounding-circle radius of each lane
+    link_src: np.ndarray  # (C,) lane index of each connection lane -> successor
+    link_dst: np.ndarray  # (C,)
+
+    @classmethod
+    def from_lanes(cls, lanes: list[Lane]) -> LaneMap:
+        lanes = sorted(lanes, key=lambda lane: lane.id)
+        index = {lane.id: i for i, lane in enumerate(lanes)}
+        lengths = np.array([len(lane.xyz) for lane in lanes], np.int64)
+        offsets = np.concatenate([[0], np.cumsum(lengths)])
+        points = np.concatenate([lane.xyz for lane in lanes]) if lanes else np.zeros((0, 3))
+        lo = np.array([lane.xyz[:, :2].min(0) for lane in lanes]).reshape(-1, 2)
+        hi = np.array([lane.xyz[:, :2].max(0) for lane in lanes]).reshape(-1, 2)
+        # successors that name lanes outside this map are ignored (real AV2 maps have them)
+        links = [(i, index[s]) for i, lane in enumerate(lanes) for s in lane.successors if s in index]
+        links = np.array(sorted(set(links)), np.int64).reshape(-1, 2)
+        return cls(
+            ids=[lane.id for lane in lanes],
+            points=points.astype(np.float64),
+            offsets=offsets,
+            centers=(lo + hi) / 2,
+            radii=np.linalg.norm(hi - lo, axis=1) / 2,
+            link_src=links[:, 0],
+            link_dst=links[:, 1],
+        )
+
+
+def crop_lane_graph(lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range) -> LaneGraph:
+    """The lane graph of one frame: every centerline moved into the ego frame and clipped to rng.
+
+    Lanes that leave and re-enter the range give separate chains. A connection lane -> successor
+    survives only when the end of the lane and the start of the successor both lie inside the range;
+    its two endpoints then become one vertex (at their mean, which is the shared point in real maps).
+    """
+    ego_xy = -world_to_ego[:3, :3].T @ world_to_ego[:3, 3]
+    near = np.flatnonzero(np.linalg.norm(lane_map.centers - ego_xy[:2], axis=1) <= lane_map.radii + rng.radius)
+    if len(near) == 0:
+        return LaneGraph.empty()
+    starts, ends = lane_map.offsets[near], lane_map.offsets[near + 1]
+    counts = ends - starts
+    take = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts) + np.arange(counts.sum())
+    world = lane_map.points[take]
+    ego = world @ world_to_ego[:3, :3].T + world_to_ego[:3, 3]
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    points, piece_offsets, piece_lane, has_start, has_end = clip_polylines(
+        np.ascontiguousarray(ego[:, :2]), offsets, rng.x_min, rng.x_max, rng.y_min, rng.y_max
+    )
+    if len(points) == 0:
+        return LaneGraph.empty()
+
+    # edges between consecutive points of each clipped piece
+    n = len(points)
+    is_last = np.zeros(n, bool)
+    is_last[piece_offsets[1:] - 1] = True
+    src = np.flatnonzero(~is_last)
+    dst = src + 1
+
+    # merge the end of a lane with the start of its successor when both are inside
+    local = np.full(len(lane_map.ids), -1, np.int64)
+    local[near] = np.arange(len(near))
+    end_vertex = np.full(len(near), -1, np.int64)
+    start_vertex = np.full(len(near), -1, np.int64)
+    end_vertex[piece_lane[has_end]] = piece_offsets[1:][has_end] - 1
+    start_vertex[piece_lane[has_start]] = piece_offsets[:-1][has_start]
+    a, b = local[lane_map.link_src], local[lane_map.link_dst]
+    ok = (a >= 0) & (b >= 0)
+    a, b = end_vertex[a[ok]], start_vertex[b[ok]]
+    ok = (a >= 0) & (b >= 0)
+    union = coo_matrix((np.ones(ok.sum()), (a[ok], b[ok])), shape=(n, n))
+    _, label = connected_components(union, directed=False)
+    n_vertices = label.max() + 1
+    size = np.bincount(label, minlength=n_vertices)
+    x = np.bincount(label, points[:, 0], n_vertices) / size
+    y = np.bincount(label, points[:, 1], n_vertices) / size
+
+    edges = np.stack([label[src], label[dst]], axis=1)
+    edges = np.unique(edges[edges[:, 0] != edges[:, 1]], axis=0)
+    return LaneGraph(x.astype(np.float32), y.astype(np.float32), edges[:, 0].astype(np.int32), edges[:, 1].astype(np.int32))

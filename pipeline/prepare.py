@@ -1,0 +1,303 @@
+"""`cli prepare`: every log of a raw dataset -> one shard per table of the prepared Parquet dataset."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import time
+from dataclasses import asdict, dataclass, field
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from pipeline import io
+from pipeline.errors import DataError
+from pipeline.geometry import matrix_quaternion
+from pipeline.lane_graph import LaneMap
+from pipeline.records import Frame, Log
+from pipeline.targets import FrameTargets, TargetOptions, flat_pose, frame_targets
+
+console = Console(stderr=True)
+
+
+@dataclass(frozen=True)
+class Job:
+    """One log to prepare: what a worker needs to find and read it."""
+
+    dataset: str
+    split: str
+    name: str
+    n_frames: int
+    ref: object  # av2: the log folder; nuscenes: a SceneRef
+    root: Path
+
+
+@dataclass
+class LogResult:
+    shard: str
+    frames: int = 0
+    paths: int = 0
+    pieces: int = 0
+    junctions: int = 0
+    cap_hits: int = 0
+    skipped: int = 0
+    errors: list[dict] = field(default_factory=list)
+
+
+def find_jobs(dataset: str, root: Path, version: str, split: str | None, frame_stride: int) -> list[Job]:
+    if dataset == "av2":
+        from pipeline.adapters import av2
+
+        return [
+            Job("av2", s, d.name, -(-len(av2.frame_timestamps(d)) // frame_stride), d, root)
+            for s, d in av2.find_logs(root, split)
+        ]
+    if dataset == "nuscenes":
+        from pipeline.adapters import nuscenes
+
+        return [
+            Job("nuscenes", r.split, r.name, -(-r.n_frames // frame_stride), r, root)
+            for r in nuscenes.find_scenes(root, version, split)
+        ]
+    raise ValueError(f"unknown dataset {dataset!r}: expected av2 or nuscenes")
+
+
+def load_job(job: Job, frame_stride: int, options: TargetOptions) -> Log:
+    if job.dataset == "av2":
+        from pipeline.adapters import av2
+
+        return av2.load_log(job.root, job.split, job.ref, frame_stride)
+    from pipeline.adapters import nuscenes
+
+    log = nuscenes.load_log(job.ref, options.rng.radius)
+    log.frames = log.frames[::frame_stride]
+    return log
+
+
+def frame_row(frame: Frame, targets: FrameTargets) -> dict:
+    return {
+        "frame_id": frame.frame_id,
+        "dataset": frame.dataset,
+        "split": frame.split,
+        "log_id": frame.log_id,
+        "timestamp_ns": frame.timestamp_ns,
+        "city": frame.city,
+        "pose_translation": frame.ego_to_world[:3, 3].tolist(),
+        "pose_rotation": matrix_quaternion(frame.ego_to_world).tolist(),
+        "cameras": [
+            {
+                "name": c.name,
+                "image_path": c.image_path,
+                "intrinsics": np.asarray(c.intrinsics, np.float64).ravel().tolist(),
+                "sensor_to_ego": np.asarray(c.sensor_to_ego, np.float64).ravel().tolist(),
+                "width": c.width,
+                "height": c.height,
+            }
+            for c in frame.cameras
+        ],
+        "lidar_path": frame.lidar_path,
+        "lidar_to_ego": np.asarray(frame.lidar_to_ego, np.float64).ravel().tolist(),
+        "n_vertices": len(targets.graph.x),
+        "n_edges": len(targets.graph.src),
+        "n_paths": len(targets.paths.vertex_ids),
+        "n_pieces": len(targets.pieces.chains),
+        "n_junctions": len(targets.pieces.junctions),
+        "path_cap_hit": targets.paths.cap_hit,
+    }
+
+
+def chain_table(frame_ids: list[str], chains: list[list[np.ndarray]], graphs, points, lengths, index: str) -> pa.Table:
+    """Rows of paths or pieces: one per chain, with its vertex ids, full polyline and resampled points."""
+    flat = [c for frame_chains in chains for c in frame_chains]
+    xs = [g.x[c] for g, frame_chains in zip(graphs, chains) for c in frame_chains]
+    ys = [g.y[c] for g, frame_chains in zip(graphs, chains) for c in frame_chains]
+    resampled = np.concatenate(points).astype(np.float32) if flat else np.zeros((0, 1, 2), np.float32)
+    counts = [len(c) for c in chains]
+    return pa.table(
+        {
+            "frame_id": pa.array(np.repeat(frame_ids, counts).tolist(), pa.string()),
+            index: pa.array(np.concatenate([np.arange(n) for n in counts] or [[]]).astype(np.int32)),
+            "vertex_ids": io.list_array([c.astype(np.int32) for c in flat], pa.int32()),
+            "x": io.list_array(xs, pa.float32()),
+            "y": io.list_array(ys, pa.float32()),
+            "rx": io.list_array(list(resampled[:, :, 0]), pa.float32()),
+            "ry": io.list_array(list(resampled[:, :, 1]), pa.float32()),
+            "length": pa.array(np.concatenate(lengths or [[]]).astype(np.float32)),
+        }
+    )
+
+
+def log_tables(frames: list[Frame], targets: list[FrameTargets], options: TargetOptions) -> dict[str, pa.Table]:
+    ids = [f.frame_id for f in frames]
+    graphs = [t.graph for t in targets]
+    height, width = options.grid.shape
+    links = [(t.pieces.link_src, t.pieces.link_dst) for t in targets]
+    return {
+        "frames": pa.Table.from_pylist([frame_row(f, t) for f, t in zip(frames, targets)], io.SCHEMAS["frames"]),
+        "graphs": pa.table(
+            {
+                "frame_id": pa.array(ids, pa.string()),
+                "x": io.list_array([g.x for g in graphs], pa.float32()),
+                "y": io.list_array([g.y for g in graphs], pa.float32()),
+                "src": io.list_array([g.src for g in graphs], pa.int32()),
+                "dst": io.list_array([g.dst for g in graphs], pa.int32()),
+            }
+        ),
+        "paths": chain_table(
+            ids, [t.paths.vertex_ids for t in targets], graphs,
+            [t.path_points for t in targets], [t.path_lengths for t in targets], "path_index",
+        ),
+        "pieces": chain_table(
+            ids, [t.pieces.chains for t in targets], graphs,
+            [t.piece_points for t in targets], [t.piece_lengths for t in targets], "piece_index",
+        ),
+        "piece_links": pa.table(
+            {
+                "frame_id": pa.array(np.repeat(ids, [len(s) for s, _ in links]).tolist(), pa.string()),
+                "src_piece": pa.array(np.concatenate([s for s, _ in links] or [[]]).astype(np.int32)),
+                "dst_piece": pa.array(np.concatenate([d for _, d in links] or [[]]).astype(np.int32)),
+            }
+        ),
+        "rasters": pa.table(
+            {
+                "frame_id": pa.array(ids, pa.string()),
+                "height": pa.array([height] * len(ids), pa.int32()),
+                "width": pa.array([width] * len(ids), pa.int32()),
+                "resolution": pa.array([options.resolution] * len(ids), pa.float32()),
+                "line_width": pa.array([options.line_width] * len(ids), pa.int32()),
+                "mask": pa.array([io.encode_raster(t.mask) for t in targets], pa.binary()),
+                "direction": pa.array([io.encode_raster(t.direction) for t in targets], pa.binary()),
+            }
+        ),
+    }  # fmt: skip
+
+
+def prepare_log(job: Job, out: Path, options: TargetOptions, frame_stride: int, on_error: str, on_frame=None) -> LogResult:
+    """Prepare one log and write its shards; bad frames raise (fail) or are recorded (skip)."""
+    result = LogResult(f"{job.split}__{job.name}")
+    try:
+        log = load_job(job, frame_stride, options)
+    except DataError as error:
+        if on_error == "fail":
+            raise
+        result.errors.append({"log": job.name, "frame_id": None, "source": error.source, "error": str(error)})
+        result.skipped = job.n_frames
+        return result
+    lane_map = LaneMap.from_lanes(log.lanes)
+    frames, targets = [], []
+    for frame in log.frames:
+        try:
+            if not np.isfinite(frame.ego_to_world).all():
+                raise DataError(log.source, f"frame {frame.frame_id}", "ego pose has NaN or infinite values")
+            pose = flat_pose(frame.ego_to_world) if log.map_is_2d else frame.ego_to_world
+            targets.append(frame_targets(lane_map, pose, options))
+            frames.append(frame)
+        except DataError as error:
+            if on_error == "fail":
+                raise
+            result.errors.append({"log": job.name, "frame_id": frame.frame_id, "source": error.source, "error": str(error)})
+            result.skipped += 1
+        if on_frame:
+            on_frame()
+    io.write_shard(out, result.shard, log_tables(frames, targets, options))
+    result.frames = len(frames)
+    result.paths = sum(len(t.paths.vertex_ids) for t in targets)
+    result.pieces = sum(len(t.pieces.chains) for t in targets)
+    result.junctions = sum(len(t.pieces.junctions) for t in targets)
+    result.cap_hits = sum(t.paths.cap_hit for t in targets)
+    return result
+
+
+def _work(args) -> LogResult:
+    return prepare_log(*args)
+
+
+def package_versions() -> dict[str, str]:
+    names = ("numpy", "shapely", "pyarrow", "scipy", "numba", "opencv-python-headless", "av2", "nuscenes-devkit")
+    versions = {}
+    for name in names:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            pass
+    return versions
+
+
+def prepare(
+    dataset: str,
+    root: Path,
+    out: Path,
+    options: TargetOptions,
+    version: str = "v1.0-trainval",
+    split: str | None = None,
+    workers: int = 1,
+    frame_stride: int = 1,
+    on_error: str = "fail",
+    overwrite: bool = False,
+) -> dict:
+    """Prepare every log of root into out; returns (and prints) a summary."""
+    if on_error not in ("fail", "skip"):
+        raise ValueError(f"--on-error must be fail or skip, not {on_error!r}")
+    root, out = Path(root).resolve(), Path(out)
+    jobs = find_jobs(dataset, root, version, split, frame_stride)
+    out.mkdir(parents=True, exist_ok=True)
+    todo = [j for j in jobs if overwrite or not io.shard_done(out, f"{j.split}__{j.name}")]
+    results: list[LogResult] = []
+    start = time.perf_counter()
+    columns = [TextColumn("prepare {task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn()]
+    with Progress(*columns, console=console, transient=False) as progress:
+        task = progress.add_task(f"{dataset} frames", total=sum(j.n_frames for j in todo))
+        if workers <= 1:
+            for job in todo:
+                results.append(prepare_log(job, out, options, frame_stride, on_error, lambda: progress.advance(task)))
+        else:
+            # fork: workers inherit the loaded nuScenes tables instead of reading them again
+            context = multiprocessing.get_context("fork")
+            with context.Pool(workers) as pool:
+                args = [(job, out, options, frame_stride, on_error) for job in todo]
+                for job, result in zip(todo, pool.imap(_work, args)):
+                    results.append(result)
+                    progress.advance(task, job.n_frames)
+    elapsed = time.perf_counter() - start
+
+    errors = [e for r in results for e in r.errors]
+    if errors:
+        previous = (out / "errors.jsonl").read_text() if (out / "errors.jsonl").is_file() else ""
+        lines = previous + "".join(json.dumps(e) + "\n" for e in errors)
+        io.write_atomic(out / "errors.jsonl", lambda tmp: tmp.write_text(lines))
+    frames = sum(r.frames for r in results)
+    summary = {
+        "logs": len(jobs),
+        "logs_prepared": len(todo),
+        "logs_already_done": len(jobs) - len(todo),
+        "frames": frames,
+        "frames_skipped": sum(r.skipped for r in results),
+        "paths_per_frame": sum(r.paths for r in results) / max(frames, 1),
+        "pieces_per_frame": sum(r.pieces for r in results) / max(frames, 1),
+        "junctions_per_frame": sum(r.junctions for r in results) / max(frames, 1),
+        "path_cap_hits": sum(r.cap_hits for r in results),
+        "seconds": elapsed,
+        "frames_per_second": frames / elapsed if elapsed > 0 else 0.0,
+    }
+    options_dict = asdict(options)
+    options_dict["rng"] = options.rng.text
+    io.write_json(
+        out / "manifest.json",
+        {
+            "schema_version": io.SCHEMA_VERSION,
+            "dataset": dataset,
+            "root": str(root),
+            "version": version if dataset == "nuscenes" else None,
+            "parameters": {**options_dict, "frame_stride": frame_stride, "split": split},
+            "range": {"x_min": options.rng.x_min, "x_max": options.rng.x_max,
+                      "y_min": options.rng.y_min, "y_max": options.rng.y_max},
+            "packages": package_versions(),
+            "rows": {table: io.count_rows(out, table) for table in io.TABLES},
+            "last_run": summary,
+        },
+    )  # fmt: skip
+    return summary

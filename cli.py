@@ -30,7 +30,9 @@ def prepare(
     dataset: str = typer.Option(..., help="av2 or nuscenes"),
     root: Path = typer.Option(..., help="AV2: the folder holding train/, val/, ... ; nuScenes: the dataroot"),
     out: Path = typer.Option(..., help="Output folder of the prepared Parquet dataset"),
-    version: str = typer.Option("v1.0-trainval", help="nuScenes table version (v1.0-mini, v1.0-trainval, ...)"),
+    version: str = typer.Option(
+        "v1.0-trainval", help="nuScenes table version (v1.0-mini, v1.0-trainval, ...)"
+    ),
     split: str = typer.Option(None, help="Prepare one split (train, val, ...); default: all"),
     range_: str = typer.Option("30x60", "--range", help="Perception range WIDTHxLENGTH in metres (x by y)"),
     workers: int = typer.Option(1, help="Worker processes, one log at a time each"),
@@ -40,7 +42,9 @@ def prepare(
     max_paths: int = typer.Option(256, help="Cap on paths per frame (the enumeration stops there)"),
     resolution: float = typer.Option(0.15, help="Raster cell size in metres"),
     line_width: int = typer.Option(5, help="Raster line width in pixels"),
-    on_error: str = typer.Option("fail", help="fail: stop at the first bad record; skip: log it to errors.jsonl"),
+    on_error: str = typer.Option(
+        "fail", help="fail: stop at the first bad record; skip: log it to errors.jsonl"
+    ),
     overwrite: bool = typer.Option(False, help="Redo logs whose shards already exist"),
 ) -> None:
     """Crop lane graphs to the ego frame; write graphs, paths, pieces and rasters to Parquet."""
@@ -53,7 +57,9 @@ def prepare(
     from pipeline.targets import TargetOptions
 
     try:
-        options = TargetOptions(Range.parse(range_), path_points, piece_points, max_paths, resolution, line_width)
+        options = TargetOptions(
+            Range.parse(range_), path_points, piece_points, max_paths, resolution, line_width
+        )
         summary = run_prepare(
             dataset, root, out, options, version=version, split=split, workers=workers,
             frame_stride=frame_stride, on_error=on_error, overwrite=overwrite,

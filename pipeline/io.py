@@ -65,7 +65,9 @@ SCHEMAS = {
             ("length", pa.float32()),
         ]
     ),
-    "piece_links": pa.schema([("frame_id", pa.string()), ("src_piece", pa.int32()), ("dst_piece", pa.int32())]),
+    "piece_links": pa.schema(
+        [("frame_id", pa.string()), ("src_piece", pa.int32()), ("dst_piece", pa.int32())]
+    ),
     "rasters": pa.schema(
         [
             ("frame_id", pa.string()),
@@ -115,7 +117,9 @@ def write_shard(out: Path, shard: str, tables: dict[str, pa.Table]) -> None:
     """Every table of one log; frames last, so that a shard with frames is complete."""
     for name in sorted(tables, key=lambda n: n == "frames"):
         table = tables[name].cast(SCHEMAS[name])
-        write_atomic(shard_path(out, name, shard), lambda tmp, t=table: pq.write_table(t, tmp, compression="zstd"))
+        write_atomic(
+            shard_path(out, name, shard), lambda tmp, t=table: pq.write_table(t, tmp, compression="zstd")
+        )
 
 
 def write_json(path: Path, obj) -> None:
@@ -127,7 +131,9 @@ def read_table(out: Path, table: str, columns: list[str] | None = None, filter=N
     folder = Path(out) / table
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such table (is {out} a prepared dataset?)")
-    return ds.dataset(folder, format="parquet", schema=SCHEMAS[table]).to_table(columns=columns, filter=filter)
+    return ds.dataset(folder, format="parquet", schema=SCHEMAS[table]).to_table(
+        columns=columns, filter=filter
+    )
 
 
 def count_rows(out: Path, table: str) -> int:

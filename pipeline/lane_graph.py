@@ -27,7 +27,9 @@ class LaneGraph:
 
     @classmethod
     def empty(cls) -> LaneGraph:
-        return cls(np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.int32), np.zeros(0, np.int32))
+        return cls(
+            np.zeros(0, np.float32), np.zeros(0, np.float32), np.zeros(0, np.int32), np.zeros(0, np.int32)
+        )
 
 
 @dataclass
@@ -73,7 +75,9 @@ def crop_lane_graph(lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range) -> 
     its two endpoints then become one vertex (at their mean, which is the shared point in real maps).
     """
     ego_xy = -world_to_ego[:3, :3].T @ world_to_ego[:3, 3]
-    near = np.flatnonzero(np.linalg.norm(lane_map.centers - ego_xy[:2], axis=1) <= lane_map.radii + rng.radius)
+    near = np.flatnonzero(
+        np.linalg.norm(lane_map.centers - ego_xy[:2], axis=1) <= lane_map.radii + rng.radius
+    )
     if len(near) == 0:
         return LaneGraph.empty()
     starts, ends = lane_map.offsets[near], lane_map.offsets[near + 1]
@@ -115,4 +119,6 @@ def crop_lane_graph(lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range) -> 
 
     edges = np.stack([label[src], label[dst]], axis=1)
     edges = np.unique(edges[edges[:, 0] != edges[:, 1]], axis=0)
-    return LaneGraph(x.astype(np.float32), y.astype(np.float32), edges[:, 0].astype(np.int32), edges[:, 1].astype(np.int32))
+    return LaneGraph(
+        x.astype(np.float32), y.astype(np.float32), edges[:, 0].astype(np.int32), edges[:, 1].astype(np.int32)
+    )

@@ -87,5 +87,7 @@ def pieces_to_paths(pieces: Pieces, n_vertices: int, max_paths: int = 256) -> Pa
         if emit(path):
             covered[path] = True
 
-    vertex_ids = [np.concatenate([pieces.chains[path[0]]] + [pieces.chains[q][1:] for q in path[1:]]) for path in found]
+    vertex_ids = [
+        np.concatenate([pieces.chains[path[0]]] + [pieces.chains[q][1:] for q in path[1:]]) for path in found
+    ]
     return Paths(vertex_ids, cap_hit)

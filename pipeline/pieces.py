@@ -68,7 +68,9 @@ def graph_to_pieces(graph: LaneGraph) -> Pieces:
     first = np.searchsorted(starts[order_start], ends, "left")
     last = np.searchsorted(starts[order_start], ends, "right")
     link_src = np.repeat(np.arange(len(chains)), last - first)
-    link_dst = order_start[np.concatenate([np.arange(f, t) for f, t in zip(first, last)] or [np.zeros(0, np.int64)])]
+    link_dst = order_start[
+        np.concatenate([np.arange(f, t) for f, t in zip(first, last)] or [np.zeros(0, np.int64)])
+    ]
     return Pieces(chains, link_src.astype(np.int64), link_dst.astype(np.int64), np.flatnonzero(is_junction))
 
 

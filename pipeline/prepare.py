@@ -110,7 +110,9 @@ def frame_row(frame: Frame, targets: FrameTargets) -> dict:
     }
 
 
-def chain_table(frame_ids: list[str], chains: list[list[np.ndarray]], graphs, points, lengths, index: str) -> pa.Table:
+def chain_table(
+    frame_ids: list[str], chains: list[list[np.ndarray]], graphs, points, lengths, index: str
+) -> pa.Table:
     """Rows of paths or pieces: one per chain, with its vertex ids, full polyline and resampled points."""
     flat = [c for frame_chains in chains for c in frame_chains]
     xs = [g.x[c] for g, frame_chains in zip(graphs, chains) for c in frame_chains]
@@ -131,13 +133,15 @@ def chain_table(frame_ids: list[str], chains: list[list[np.ndarray]], graphs, po
     )
 
 
-def log_tables(frames: list[Frame], targets: list[FrameTargets], options: TargetOptions) -> dict[str, pa.Table]:
+def log_tables(
+    frames: list[Frame], targets: list[FrameTargets], options: TargetOptions
+) -> dict[str, pa.Table]:
     ids = [f.frame_id for f in frames]
     graphs = [t.graph for t in targets]
     height, width = options.grid.shape
     links = [(t.pieces.link_src, t.pieces.link_dst) for t in targets]
     return {
-        "frames": pa.Table.from_pylist([frame_row(f, t) for f, t in zip(frames, targets)], io.SCHEMAS["frames"]),
+        "frames": pa.Table.from_pylist(list(map(frame_row, frames, targets)), io.SCHEMAS["frames"]),
         "graphs": pa.table(
             {
                 "frame_id": pa.array(ids, pa.string()),
@@ -176,7 +180,9 @@ def log_tables(frames: list[Frame], targets: list[FrameTargets], options: Target
     }  # fmt: skip
 
 
-def prepare_log(job: Job, out: Path, options: TargetOptions, frame_stride: int, on_error: str, on_frame=None) -> LogResult:
+def prepare_log(
+    job: Job, out: Path, options: TargetOptions, frame_stride: int, on_error: str, on_frame=None
+) -> LogResult:
     """Prepare one log and write its shards; bad frames raise (fail) or are recorded (skip)."""
     result = LogResult(f"{job.split}__{job.name}")
     try:
@@ -199,7 +205,9 @@ def prepare_log(job: Job, out: Path, options: TargetOptions, frame_stride: int, 
         except DataError as error:
             if on_error == "fail":
                 raise
-            result.errors.append({"log": job.name, "frame_id": frame.frame_id, "source": error.source, "error": str(error)})
+            result.errors.append(
+                {"log": job.name, "frame_id": frame.frame_id, "source": error.source, "error": str(error)}
+            )
             result.skipped += 1
         if on_frame:
             on_frame()
@@ -217,7 +225,16 @@ def _work(args) -> LogResult:
 
 
 def package_versions() -> dict[str, str]:
-    names = ("numpy", "shapely", "pyarrow", "scipy", "numba", "opencv-python-headless", "av2", "nuscenes-devkit")
+    names = (
+        "numpy",
+        "shapely",
+        "pyarrow",
+        "scipy",
+        "numba",
+        "opencv-python-headless",
+        "av2",
+        "nuscenes-devkit",
+    )
     versions = {}
     for name in names:
         try:
@@ -248,12 +265,19 @@ def prepare(
     todo = [j for j in jobs if overwrite or not io.shard_done(out, f"{j.split}__{j.name}")]
     results: list[LogResult] = []
     start = time.perf_counter()
-    columns = [TextColumn("prepare {task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn()]
+    columns = [
+        TextColumn("prepare {task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+    ]
     with Progress(*columns, console=console, transient=False) as progress:
         task = progress.add_task(f"{dataset} frames", total=sum(j.n_frames for j in todo))
         if workers <= 1:
             for job in todo:
-                results.append(prepare_log(job, out, options, frame_stride, on_error, lambda: progress.advance(task)))
+                results.append(
+                    prepare_log(job, out, options, frame_stride, on_error, lambda: progress.advance(task))
+                )
         else:
             # fork: workers inherit the loaded nuScenes tables instead of reading them again
             context = multiprocessing.get_context("fork")

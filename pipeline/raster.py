@@ -48,8 +48,12 @@ def rasterize(graph: LaneGraph, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
     fixed = np.round(uv * (1 << SUBPIXEL_BITS)).astype(np.int32)
     segments = np.stack([fixed[graph.src], fixed[graph.dst]], axis=1)  # (E, 2, 2)
     cv2.polylines(mask, list(segments), False, 1, grid.line_width, cv2.LINE_8, SUBPIXEL_BITS)
-    bins = grid.direction_bin(graph.x[graph.dst] - graph.x[graph.src], graph.y[graph.dst] - graph.y[graph.src])
+    bins = grid.direction_bin(
+        graph.x[graph.dst] - graph.x[graph.src], graph.y[graph.dst] - graph.y[graph.src]
+    )
     # one cv2 call per direction bin instead of one per edge (the hot path)
     for b in np.unique(bins).tolist():
-        cv2.polylines(direction, list(segments[bins == b]), False, b, grid.line_width, cv2.LINE_8, SUBPIXEL_BITS)
+        cv2.polylines(
+            direction, list(segments[bins == b]), False, b, grid.line_width, cv2.LINE_8, SUBPIXEL_BITS
+        )
     return mask, direction

@@ -65,4 +65,6 @@ def frame_targets(lane_map: LaneMap, ego_to_world: np.ndarray, options: TargetOp
     path_points, path_lengths = resample(paths.vertex_ids, graph, options.path_points)
     piece_points, piece_lengths = resample(pieces.chains, graph, options.piece_points)
     mask, direction = rasterize(graph, options.grid)
-    return FrameTargets(graph, pieces, paths, path_points, path_lengths, piece_points, piece_lengths, mask, direction)
+    return FrameTargets(
+        graph, pieces, paths, path_points, path_lengths, piece_points, piece_lengths, mask, direction
+    )

@@ -39,7 +39,9 @@ def read_lanes(log_dir: Path) -> tuple[list[Lane], str]:
     map_dir = log_dir / "map"
     files = sorted(map_dir.glob("log_map_archive_*.json"))
     if len(files) != 1:
-        raise DataError(map_dir, "log_map_archive_*.json", f"expected one vector map file, found {len(files)}")
+        raise DataError(
+            map_dir, "log_map_archive_*.json", f"expected one vector map file, found {len(files)}"
+        )
     try:
         static_map = ArgoverseStaticMap.from_json(files[0])
     except Exception as error:  # the av2 parser raises JSONDecodeError, KeyError, TypeError, ...
@@ -132,7 +134,7 @@ def load_log(root: Path, split: str, log_dir: Path, frame_stride: int = 1) -> Lo
         frame_cameras = [
             Camera(
                 name,
-                str((log_dir / "sensors" / "cameras" / name / f"{times[nearest(times, t)]}.jpg").relative_to(root)),
+                str((log_dir / f"sensors/cameras/{name}/{times[nearest(times, t)]}.jpg").relative_to(root)),
                 K, cam_to_bev, int(w), int(h),
             )
             for name, (K, cam_to_bev, w, h, times) in cameras.items() if len(times)
@@ -147,7 +149,9 @@ def load_log(root: Path, split: str, log_dir: Path, frame_stride: int = 1) -> Lo
                 city=city,
                 ego_to_world=pose,
                 cameras=frame_cameras,
-                lidar_path=str((log_dir / "sensors" / "lidar" / f"{t}.feather").relative_to(root)) if has_lidar else "",
+                lidar_path=str((log_dir / "sensors" / "lidar" / f"{t}.feather").relative_to(root))
+                if has_lidar
+                else "",
                 lidar_to_ego=BEV_FROM_AV2_EGO.copy(),
             )
         )

@@ -41,7 +41,9 @@ def load_tables(dataroot: Path, version: str):
         try:
             _tables[key] = NuScenes(version=version, dataroot=str(dataroot), verbose=False)
         except Exception as error:
-            raise DataError(dataroot / version, "tables", f"cannot be loaded: {type(error).__name__}: {error}") from error
+            raise DataError(
+                dataroot / version, "tables", f"cannot be loaded: {type(error).__name__}: {error}"
+            ) from error
     return _tables[key]
 
 
@@ -67,11 +69,15 @@ def find_scenes(dataroot: Path, version: str, split: str | None) -> list[SceneRe
     refs = []
     for name in split_names(version, split):
         if name not in official:
-            raise DataError(dataroot / version, f"split {name}", f"not an official split ({sorted(official)})")
+            raise DataError(
+                dataroot / version, f"split {name}", f"not an official split ({sorted(official)})"
+            )
         for scene_name in official[name]:
             if scene_name in by_name:
                 scene = by_name[scene_name]
-                refs.append(SceneRef(dataroot, version, name, scene["token"], scene_name, scene["nbr_samples"]))
+                refs.append(
+                    SceneRef(dataroot, version, name, scene["token"], scene_name, scene["nbr_samples"])
+                )
     return refs
 
 
@@ -86,7 +92,9 @@ def open_map(dataroot: Path, map_name: str):
     try:
         nusc_map = NuScenesMap(dataroot=str(dataroot), map_name=map_name)
     except Exception as error:
-        raise DataError(path, f"map {map_name}", f"cannot be loaded: {type(error).__name__}: {error}") from error
+        raise DataError(
+            path, f"map {map_name}", f"cannot be loaded: {type(error).__name__}: {error}"
+        ) from error
     return nusc_map, {}
 
 
@@ -122,7 +130,9 @@ def lanes_near(dataroot: Path, map_name: str, centre: np.ndarray, radius: float)
 def sensor_to_world(nusc, sample_data: dict) -> np.ndarray:
     calib = nusc.get("calibrated_sensor", sample_data["calibrated_sensor_token"])
     ego = nusc.get("ego_pose", sample_data["ego_pose_token"])
-    return pose_matrix(ego["rotation"], ego["translation"]) @ pose_matrix(calib["rotation"], calib["translation"])
+    return pose_matrix(ego["rotation"], ego["translation"]) @ pose_matrix(
+        calib["rotation"], calib["translation"]
+    )
 
 
 def load_log(ref: SceneRef, margin: float) -> Log:

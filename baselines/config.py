@@ -1,0 +1,226 @@
+"""Configuration as plain dataclasses, with the `paper` and `tiny` presets.
+
+Every field can be overridden from the command line with `--set section.field=value`
+(e.g. `--set train.lr=3e-4 --set encoder.kernel_size=3,3`); the resolved config is saved with the run.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from baselines.resnet import BackboneName
+
+Modality = Literal["camera", "lidar", "fusion"]
+
+
+@dataclass
+class EncoderConfig:
+    """The shared BEV encoder: cameras (ResNet + FPN-like neck + GKT) and/or LiDAR pillars."""
+
+    modality: Modality = "camera"
+    x_range: tuple[float, float] = (-15.0, 15.0)  # metres, BEV columns (x right)
+    y_range: tuple[float, float] = (-30.0, 30.0)  # metres, BEV rows (y forward; row 0 = front)
+    bev_h: int = 200  # rows: 60 m / 0.3 m
+    bev_w: int = 100  # columns: 30 m / 0.3 m
+    channels: int = 256
+    dropout: float = 0.1
+    # Camera branch.
+    backbone: BackboneName = "resnet50"
+    backbone_width: int = 64  # 64 is torchvision's; pretrained weights need 64
+    backbone_weights: str = ""  # local torchvision state_dict file; never downloaded
+    backbone_frozen_stages: int = 1  # stem + layer1 frozen, as MapTR
+    backbone_norm_eval: bool = True  # keep pretrained BatchNorm statistics
+    feature_stride: int = 32  # the neck's output stride: 8, 16 or 32
+    camera_heights: tuple[float, ...] = (-1.5, -0.5, 0.5, 1.5)  # z of the 3D points of a BEV pillar
+    kernel_size: tuple[int, int] = (3, 5)  # GKT kernel (rows, columns) around each projection
+    camera_heads: int = 4
+    camera_layers: int = 1
+    max_views: int = 2  # cameras a BEV point reads at most (overlaps are seen by two)
+    # LiDAR branch.
+    pillar_channels: int = 64
+    pillar_subdivision: int = 2  # pillars per BEV cell side (2: 0.15 m pillars on the 0.3 m grid)
+    z_range: tuple[float, float] = (-5.0, 3.0)  # metres; points outside are dropped
+    lidar_blocks: int = 2
+
+    def metres_to_unit(self, xy: Any) -> Any:
+        """BEV metres (..., 2) -> unit coordinates (u right, v down the rows; (0, 0) = front-left corner)."""
+        (x0, x1), (y0, y1) = self.x_range, self.y_range
+        u = (xy[..., 0] - x0) / (x1 - x0)
+        v = (y1 - xy[..., 1]) / (y1 - y0)
+        return _stack(u, v, xy)
+
+    def unit_to_metres(self, uv: Any) -> Any:
+        (x0, x1), (y0, y1) = self.x_range, self.y_range
+        return _stack(x0 + uv[..., 0] * (x1 - x0), y1 - uv[..., 1] * (y1 - y0), uv)
+
+
+def _stack(a: Any, b: Any, like: Any) -> Any:
+    # The same arithmetic serves numpy arrays (data, evaluation) and tensors (model).
+    return torch.stack([a, b], -1) if isinstance(like, torch.Tensor) else np.stack([a, b], -1)
+
+
+@dataclass
+class DecoderConfig:
+    """LaneGAP's MapTR-style path decoder and its loss (paper Eq. 3 and 4)."""
+
+    num_paths: int = 50  # instance queries
+    path_points: int = 30  # N points per path (10 / 20 / 30 / 40)
+    bezier_points: int = 0  # 0: polyline head; K > 0: Bezier head with K control points (paper: 5)
+    layers: int = 6
+    heads: int = 8
+    ffn_channels: int = 512
+    deform_points: int = 4  # samples per head (per anchor) in the deformable cross-attention
+    dropout: float = 0.1
+    aux_seg: bool = True  # auxiliary BEV segmentation (training only)
+    cls_weight: float = 2.0
+    point_weight: float = 5.0
+    seg_weight: float = 1.0
+    focal_alpha: float = 0.25
+    focal_gamma: float = 2.0
+    score_threshold: float = 0.4  # paths kept at inference
+
+
+@dataclass
+class DataConfig:
+    image_scale_nuscenes: float = 0.5  # image resize ratio of the paper
+    image_scale_av2: float = 0.3
+    image_divisor: int = 32  # images are padded to a multiple of this (bottom / right)
+    max_points: int = 120_000  # LiDAR points kept per sweep (random subset beyond)
+    sensor_root: str = ""  # raw dataset root; default: the `root` in the prepared manifest.json
+    num_workers: int = 4
+
+
+@dataclass
+class TrainConfig:
+    epochs: int = 24
+    batch_size: int = 32  # in total, over all processes
+    lr: float = 6e-4
+    backbone_lr_mult: float = 0.1
+    betas: tuple[float, float] = (0.9, 0.999)
+    eps: float = 1e-8
+    weight_decay: float = 0.01
+    warmup_iters: int = 500
+    warmup_ratio: float = 1.0 / 3  # warm-up starts at lr * warmup_ratio
+    min_lr_ratio: float = 1e-3  # cosine decays to lr * min_lr_ratio
+    grad_clip: float = 35.0
+    amp: bool = True  # mixed precision on CUDA
+    seed: int = 0
+    log_every: int = 10
+    threads: int = 0  # torch CPU threads; 0 keeps torch's default
+    train_split: str = "train"
+    val_split: str = "val"
+
+
+@dataclass
+class Config:
+    preset: str = "paper"
+    model: Literal["lanegap"] = "lanegap"
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    decoder: DecoderConfig = field(default_factory=DecoderConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def save(self, path: Path) -> None:
+        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+    @staticmethod
+    def from_dict(values: dict[str, Any]) -> Config:
+        config = Config()
+        for key, value in values.items():
+            if isinstance(value, dict):
+                section = getattr(config, key)
+                for name, item in value.items():
+                    setattr(section, name, _coerce(getattr(section, name), item, f"{key}.{name}"))
+            else:
+                setattr(config, key, value)
+        return config
+
+    @staticmethod
+    def load(path: Path) -> Config:
+        return Config.from_dict(json.loads(path.read_text()))
+
+
+def paper() -> Config:
+    """The paper's settings (Tab. 11/12): ResNet-50, 200 x 100 BEV, batch 32, 24 epochs."""
+    return Config(preset="paper")
+
+
+def tiny() -> Config:
+    """A CPU-sized model: seconds per epoch on the synthetic data, the same code paths as `paper`."""
+    return Config(
+        preset="tiny",
+        encoder=EncoderConfig(
+            bev_h=40,
+            bev_w=20,
+            channels=64,
+            dropout=0.0,
+            backbone="resnet18",
+            backbone_width=16,
+            backbone_frozen_stages=0,
+            backbone_norm_eval=False,
+            feature_stride=8,
+            camera_heights=(0.0,),
+            kernel_size=(3, 3),
+            camera_heads=4,
+            max_views=2,
+            pillar_channels=32,
+            pillar_subdivision=1,
+            lidar_blocks=1,
+        ),
+        decoder=DecoderConfig(num_paths=16, path_points=20, layers=3, heads=4, ffn_channels=128, dropout=0.0),
+        data=DataConfig(image_scale_nuscenes=0.2, image_scale_av2=0.1, max_points=20_000, num_workers=0),
+        train=TrainConfig(
+            epochs=40, batch_size=4, lr=1e-3, backbone_lr_mult=1.0, warmup_iters=50, amp=False, threads=2
+        ),
+    )
+
+
+PRESETS = {"paper": paper, "tiny": tiny}
+
+
+def apply_overrides(config: Config, overrides: list[str]) -> Config:
+    """Apply `section.field=value` strings; the value is parsed as the type of the current value."""
+    for item in overrides:
+        name, sep, text = item.partition("=")
+        section_name, dot, field_name = name.strip().partition(".")
+        if not sep or not dot or not hasattr(config, section_name):
+            raise ValueError(f"expected section.field=value, got {item!r}")
+        section = getattr(config, section_name)
+        if not hasattr(section, field_name):
+            raise ValueError(f"{section_name} has no field {field_name!r}")
+        setattr(section, field_name, _coerce(getattr(section, field_name), text.strip(), name))
+    return config
+
+
+def _coerce(current: Any, value: Any, name: str) -> Any:
+    """`value` (a string from the command line, or a JSON value) as the type of `current`."""
+    if isinstance(value, str) and not isinstance(current, str):
+        if isinstance(current, bool):
+            if value.lower() not in ("true", "false", "1", "0"):
+                raise ValueError(f"{name}: expected true or false, got {value!r}")
+            return value.lower() in ("true", "1")
+        if isinstance(current, tuple):
+            value = f"({value.strip('()[] ')},)"  # "3,5", "(3, 5)" and "3" all give a tuple
+        value = ast.literal_eval(value)
+    if isinstance(current, tuple):
+        value = tuple(value)
+        element = type(current[0]) if current else float
+        return tuple(element(v) for v in value)
+    if isinstance(current, bool):
+        return bool(value)
+    if isinstance(current, float):
+        return float(value)
+    if isinstance(current, int):
+        return int(value)
+    return value

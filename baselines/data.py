@@ -1,0 +1,246 @@
+"""Training samples from a prepared dataset (docs/DATA.md) and the raw sensor files it points to.
+
+Real nuScenes / AV2 and the synthetic data go through the same code: images (cv2) resized by the
+paper's ratio (0.5 nuScenes, 0.3 AV2), LiDAR sweeps (nuScenes `.pcd.bin` float32 x 5, AV2 `.feather`)
+moved into the BEV frame. Targets: the paths' points resampled to N, in unit BEV coordinates, and a
+lane mask on the BEV grid for the auxiliary segmentation.
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pyarrow.compute as pc
+import pyarrow.feather as feather
+import torch
+
+from baselines.config import Config
+from baselines.encoder import SensorBatch
+from pipeline.io import decode_raster, read_table
+
+IMAGENET_MEAN = np.array([123.675, 116.28, 103.53], np.float32)  # torchvision's, RGB 0..255
+IMAGENET_STD = np.array([58.395, 57.12, 57.375], np.float32)
+
+
+@dataclass
+class Sample:
+    frame_id: str
+    images: np.ndarray | None  # (Ncam, 3, H, W) float32 normalised, padded
+    intrinsics: np.ndarray | None  # (Ncam, 3, 3)
+    sensor_to_ego: np.ndarray | None  # (Ncam, 4, 4)
+    image_sizes: np.ndarray | None  # (Ncam, 2) height, width before padding
+    points: np.ndarray | None  # (P, 4) x, y, z, intensity (0..1) in the BEV frame
+    paths: np.ndarray  # (G, N, 2) unit BEV coordinates
+    seg: np.ndarray  # (bev_h, bev_w) int64: 1 lane, 0 background
+
+
+def resample_polyline(xy: np.ndarray, n: int) -> np.ndarray:
+    """(m, 2) polyline -> (n, 2) points evenly spaced by arc length, ends kept."""
+    if len(xy) == 1:
+        return np.repeat(xy, n, 0)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    if arc[-1] <= 0:
+        return np.repeat(xy[:1], n, 0)
+    t = np.linspace(0.0, arc[-1], n)
+    return np.stack([np.interp(t, arc, xy[:, 0]), np.interp(t, arc, xy[:, 1])], 1)
+
+
+def read_image(path: Path, scale: float) -> tuple[np.ndarray, float, float]:
+    """RGB float32 (H, W, 3) resized by `scale`, and the actual x / y scale factors."""
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise FileNotFoundError(f"{path}: image missing or unreadable")
+    height, width = image.shape[:2]
+    new_w, new_h = max(1, round(width * scale)), max(1, round(height * scale))
+    if (new_w, new_h) != (width, height):
+        image = cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_AREA)
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB).astype(np.float32), new_w / width, new_h / height
+
+
+def scaled_intrinsics(intrinsics: np.ndarray, scale_x: float, scale_y: float) -> np.ndarray:
+    """Intrinsics of a resized image; pixel centres (OpenCV convention) map as (u + 0.5) * s - 0.5."""
+    k = intrinsics.copy()
+    k[0, 0], k[0, 1], k[0, 2] = k[0, 0] * scale_x, k[0, 1] * scale_x, (k[0, 2] + 0.5) * scale_x - 0.5
+    k[1, 1], k[1, 2] = k[1, 1] * scale_y, (k[1, 2] + 0.5) * scale_y - 0.5
+    return k
+
+
+def read_lidar(path: Path) -> np.ndarray:
+    """(P, 4) x, y, z, intensity 0..1 in the sensor's frame (AV2: the egovehicle frame)."""
+    if path.name.endswith(".bin"):  # nuScenes .pcd.bin: x, y, z, intensity, ring index
+        points = np.fromfile(path, np.float32).reshape(-1, 5)[:, :4].copy()
+    elif path.suffix == ".feather":
+        table = feather.read_table(path, columns=["x", "y", "z", "intensity"])
+        points = np.stack([table[c].to_numpy().astype(np.float32) for c in ("x", "y", "z", "intensity")], 1)
+    else:
+        raise ValueError(f"{path}: unknown LiDAR format (expected .pcd.bin or .feather)")
+    points[:, 3] /= 255.0  # both datasets store intensity as 0..255
+    return points
+
+
+def lane_mask_from_raster(row: dict, bev_h: int, bev_w: int) -> np.ndarray:
+    """The `rasters` lane mask on the BEV grid: a BEV cell is lane if any raster cell inside it is."""
+    mask, _ = decode_raster(row)
+    if mask.shape[0] % bev_h == 0 and mask.shape[1] % bev_w == 0:
+        fy, fx = mask.shape[0] // bev_h, mask.shape[1] // bev_w
+        return mask.reshape(bev_h, fy, bev_w, fx).max(axis=(1, 3)).astype(np.int64)
+    resized = cv2.resize(mask.astype(np.float32), (bev_w, bev_h), interpolation=cv2.INTER_AREA)
+    return (resized > 0).astype(np.int64)
+
+
+def lane_mask_from_paths(paths_unit: np.ndarray, bev_h: int, bev_w: int) -> np.ndarray:
+    """Lane mask drawn from the paths' polylines, for datasets prepared without rasters."""
+    mask = np.zeros((bev_h, bev_w), np.uint8)
+    scale = np.array([bev_w, bev_h], np.float64)
+    for path in paths_unit:
+        pixels = np.round(path * scale * 16 - 0.5 * 16).astype(np.int32)  # 4 fractional bits
+        cv2.polylines(mask, [pixels], False, 1, 1, cv2.LINE_8, shift=4)
+    return mask.astype(np.int64)
+
+
+class PreparedDataset(torch.utils.data.Dataset):
+    """The frames of one split of a prepared dataset, with their sensors and targets."""
+
+    def __init__(self, data_dir: Path, split: str, config: Config):
+        self.data_dir = Path(data_dir)
+        self.config = config
+        manifest_path = self.data_dir / "manifest.json"
+        manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
+        self.sensor_root = Path(config.data.sensor_root or manifest.get("root", self.data_dir))
+        in_split = pc.field("split") == split
+        frames = read_table(self.data_dir, "frames", filter=in_split).sort_by("frame_id").to_pylist()
+        if not frames:
+            raise ValueError(f"{self.data_dir}: no frames in split {split!r}")
+        self.frames = frames
+        frame_ids = set(f["frame_id"] for f in frames)
+        in_frames = pc.field("frame_id").isin(sorted(frame_ids))
+        columns = ["frame_id", "path_index", "x", "y", "rx", "ry"]
+        paths = read_table(self.data_dir, "paths", columns=columns, filter=in_frames)
+        paths = paths.sort_by([("frame_id", "ascending"), ("path_index", "ascending")])
+        self.paths: dict[str, list[np.ndarray]] = {frame_id: [] for frame_id in frame_ids}
+        n = config.decoder.path_points
+        for row in paths.to_pylist():
+            if len(row["rx"]) == n:
+                xy = np.stack([row["rx"], row["ry"]], 1)
+            else:
+                xy = resample_polyline(np.stack([row["x"], row["y"]], 1).astype(np.float64), n)
+            self.paths[row["frame_id"]].append(config.encoder.metres_to_unit(xy.astype(np.float32)))
+        self.rasters: dict[str, dict] = {}
+        if (self.data_dir / "rasters").is_dir() and config.decoder.aux_seg:
+            for row in read_table(self.data_dir, "rasters", filter=in_frames).to_pylist():
+                self.rasters[row["frame_id"]] = row
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, index: int) -> Sample:
+        frame = self.frames[index]
+        config = self.config
+        modality = config.encoder.modality
+        paths = self.paths[frame["frame_id"]]
+        n = config.decoder.path_points
+        paths_unit = np.stack(paths).astype(np.float32) if paths else np.zeros((0, n, 2), np.float32)
+        bev_h, bev_w = config.encoder.bev_h, config.encoder.bev_w
+        raster = self.rasters.get(frame["frame_id"])
+        if raster is not None:
+            seg = lane_mask_from_raster(raster, bev_h, bev_w)
+        else:
+            seg = lane_mask_from_paths(paths_unit, bev_h, bev_w)
+        sample = Sample(frame["frame_id"], None, None, None, None, None, paths_unit, seg)
+        if modality in ("camera", "fusion"):
+            self._load_cameras(frame, sample)
+        if modality in ("lidar", "fusion"):
+            sample.points = self._load_lidar(frame, index)
+        return sample
+
+    def _load_cameras(self, frame: dict, sample: Sample) -> None:
+        cameras = frame["cameras"]
+        if not cameras:
+            raise ValueError(f"{frame['frame_id']}: no cameras in the prepared frame (camera modality)")
+        data = self.config.data
+        scale = data.image_scale_nuscenes if frame["dataset"] == "nuscenes" else data.image_scale_av2
+        images, intrinsics, extrinsics, sizes = [], [], [], []
+        for camera in cameras:
+            image, scale_x, scale_y = read_image(self.sensor_root / camera["image_path"], scale)
+            images.append((image - IMAGENET_MEAN) / IMAGENET_STD)
+            k = np.array(camera["intrinsics"], np.float64).reshape(3, 3)
+            intrinsics.append(scaled_intrinsics(k, scale_x, scale_y))
+            extrinsics.append(np.array(camera["sensor_to_ego"], np.float64).reshape(4, 4))
+            sizes.append(image.shape[:2])
+        divisor = data.image_divisor
+        height = -(-max(s[0] for s in sizes) // divisor) * divisor
+        width = -(-max(s[1] for s in sizes) // divisor) * divisor
+        # AV2's front camera is portrait, the others landscape: pad all to one size (bottom / right,
+        # which leaves the pixel coordinates and so the intrinsics unchanged).
+        padded = np.zeros((len(images), 3, height, width), np.float32)
+        for i, image in enumerate(images):
+            padded[i, :, : image.shape[0], : image.shape[1]] = image.transpose(2, 0, 1)
+        sample.images = padded
+        sample.intrinsics = np.stack(intrinsics).astype(np.float32)
+        sample.sensor_to_ego = np.stack(extrinsics).astype(np.float32)
+        sample.image_sizes = np.array(sizes, np.int64)
+
+    def _load_lidar(self, frame: dict, index: int) -> np.ndarray:
+        if not frame["lidar_path"]:
+            raise ValueError(f"{frame['frame_id']}: no LiDAR sweep in the prepared frame (lidar modality)")
+        points = read_lidar(self.sensor_root / frame["lidar_path"])
+        lidar_to_ego = np.array(frame["lidar_to_ego"], np.float64).reshape(4, 4)
+        points[:, :3] = (
+            points[:, :3].astype(np.float64) @ lidar_to_ego[:3, :3].T + lidar_to_ego[:3, 3]
+        ).astype(np.float32)
+        encoder = self.config.encoder
+        (x0, x1), (y0, y1), (z0, z1) = encoder.x_range, encoder.y_range, encoder.z_range
+        x, y, z = points[:, 0], points[:, 1], points[:, 2]
+        points = points[(x >= x0) & (x <= x1) & (y >= y0) & (y <= y1) & (z >= z0) & (z <= z1)]
+        limit = self.config.data.max_points
+        if len(points) > limit:
+            # A fixed subset per frame, so that an epoch is reproducible whatever the worker.
+            rng = np.random.default_rng(zlib.crc32(frame["frame_id"].encode()))
+            points = points[np.sort(rng.choice(len(points), limit, replace=False))]
+        return points
+
+
+@dataclass
+class Batch:
+    frame_ids: list[str]
+    sensors: SensorBatch
+    paths: list[torch.Tensor]  # per frame (G, N, 2)
+    seg: torch.Tensor  # (B, bev_h, bev_w) int64
+
+    def to(self, device: torch.device | str) -> Batch:
+        return Batch(
+            self.frame_ids, self.sensors.to(device), [p.to(device) for p in self.paths], self.seg.to(device)
+        )
+
+
+def collate(samples: list[Sample]) -> Batch:
+    sensors = SensorBatch()
+    if samples[0].images is not None:
+        height = max(s.images.shape[2] for s in samples)
+        width = max(s.images.shape[3] for s in samples)
+        images = np.zeros((len(samples), samples[0].images.shape[0], 3, height, width), np.float32)
+        for i, s in enumerate(samples):
+            images[i, :, :, : s.images.shape[2], : s.images.shape[3]] = s.images
+        sensors.images = torch.from_numpy(images)
+        sensors.intrinsics = torch.from_numpy(np.stack([s.intrinsics for s in samples]))
+        sensors.sensor_to_ego = torch.from_numpy(np.stack([s.sensor_to_ego for s in samples]))
+        sensors.image_sizes = torch.from_numpy(np.stack([s.image_sizes for s in samples]))
+    if samples[0].points is not None:
+        count = max(1, max(len(s.points) for s in samples))
+        points = np.zeros((len(samples), count, 4), np.float32)
+        mask = np.zeros((len(samples), count), bool)
+        for i, s in enumerate(samples):
+            points[i, : len(s.points)] = s.points
+            mask[i, : len(s.points)] = True
+        sensors.points, sensors.points_mask = torch.from_numpy(points), torch.from_numpy(mask)
+    return Batch(
+        [s.frame_id for s in samples],
+        sensors,
+        [torch.from_numpy(s.paths) for s in samples],
+        torch.from_numpy(np.stack([s.seg for s in samples])),
+    )

@@ -108,6 +108,7 @@ def clip_polylines(xy, offsets, x_min, x_max, y_min, y_max):
     n_pieces = 0
     for line in range(n_lines):
         open_piece = False
+        started = False  # a piece of this line has begun
         first = offsets[line]
         last = offsets[line + 1] - 1
         for i in range(first, last):
@@ -121,21 +122,22 @@ def clip_polylines(xy, offsets, x_min, x_max, y_min, y_max):
             if not (open_piece and t0 == 0.0):
                 piece_start[n_pieces] = n_out
                 piece_line[n_pieces] = line
-                has_start[n_pieces] = i == first and t0 == 0.0
+                has_start[n_pieces] = not started and t0 == 0.0 and ax == xy[first, 0] and ay == xy[first, 1]
                 has_end[n_pieces] = False
                 n_pieces += 1
-                out[n_out, 0] = ax + t0 * (bx - ax)
-                out[n_out, 1] = ay + t0 * (by - ay)
+                # clamped: the interpolated border point can round to just outside the box
+                out[n_out, 0] = min(max(ax + t0 * (bx - ax), x_min), x_max)
+                out[n_out, 1] = min(max(ay + t0 * (by - ay), y_min), y_max)
                 n_out += 1
-            ex = bx if t1 == 1.0 else ax + t1 * (bx - ax)
-            ey = by if t1 == 1.0 else ay + t1 * (by - ay)
+            ex = bx if t1 == 1.0 else min(max(ax + t1 * (bx - ax), x_min), x_max)
+            ey = by if t1 == 1.0 else min(max(ay + t1 * (by - ay), y_min), y_max)
             if ex != out[n_out - 1, 0] or ey != out[n_out - 1, 1]:
                 out[n_out, 0] = ex
                 out[n_out, 1] = ey
                 n_out += 1
             open_piece = t1 == 1.0
-            if open_piece and i + 1 == last:
-                has_end[n_pieces - 1] = True
+        if open_piece:  # the last non-degenerate segment ended inside, at the line's last point
+            has_end[n_pieces - 1] = True
     # drop pieces that kept a single point (a line that only touches the box)
     keep = np.ones(n_pieces, np.bool_)
     piece_start[n_pieces] = n_out

@@ -26,8 +26,8 @@ def pieces_to_paths(pieces: Pieces, n_vertices: int, max_paths: int = 256) -> Pa
     Then, so that no edge is lost to cycles that no root reaches (a roundabout wholly inside the
     crop) or to the edge that closes a cycle, each piece no path has covered yet, smallest index
     first, gets one more path through it: extended backwards and forwards along the smallest-index
-    pieces that keep the path simple, preferring pieces not yet covered. Deterministic throughout;
-    at most max_paths paths.
+    pieces that keep the path simple, preferring pieces not yet covered. A closed piece (a loop that
+    starts and ends at one vertex) is such a path alone. Deterministic throughout; at most max_paths.
     """
     starts, ends = pieces.starts, pieces.ends
     successors: dict[int, list[int]] = {}
@@ -70,14 +70,14 @@ def pieces_to_paths(pieces: Pieces, n_vertices: int, max_paths: int = 256) -> Pa
         if covered[p] or cap_hit:
             continue
         path, seen = [p], {int(starts[p]), int(ends[p])}
-        while True:  # backwards
+        while starts[p] != ends[p]:  # backwards; a closed piece (a loop) is a path of its own
             ways = [q for q in predecessors.get(path[0], []) if int(starts[q]) not in seen]
             if not ways:
                 break
             q = min(ways, key=lambda q: (covered[q], q))
             path.insert(0, q)
             seen.add(int(starts[q]))
-        while True:  # forwards
+        while starts[p] != ends[p]:  # forwards
             ways = [q for q in successors.get(path[-1], []) if int(ends[q]) not in seen]
             if not ways:
                 break

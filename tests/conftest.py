@@ -13,7 +13,7 @@ AV2_ROOT = SHARED_DATA / "av2" / "sensor"
 
 def require_shared_av2() -> Path:
     if not AV2_ROOT.is_dir():
-        pytest.skip(f"real AV2 fixtures not found at {AV2_ROOT} (they live in ../shared/data beside the repo)")
+        pytest.skip(f"real AV2 fixtures not found at {AV2_ROOT} (../shared/data beside the repo)")
     return AV2_ROOT
 
 

@@ -74,7 +74,8 @@ def test_resample_is_even_and_on_the_line(line, n):
     assert (distance < 1e-6).all()
     # evenly spaced by arc length (projection is exact for lines that do not cross themselves)
     if geometry.is_simple and not geometry.is_closed:
-        np.testing.assert_allclose(along, np.linspace(0, geometry.length, n), atol=1e-6 * max(1, geometry.length))
+        tolerance = 1e-6 * max(1, geometry.length)
+        np.testing.assert_allclose(along, np.linspace(0, geometry.length, n), atol=tolerance)
 
 
 def test_range_parse():

@@ -21,8 +21,8 @@ def test_every_frame_prepares(prepared_av2, av2_root):
     frames = read_table(prepared_av2, "frames")
     expected = 0
     for log_dir in sorted(av2_root.glob("*/*")):
-        name = "annotations.feather" if (log_dir / "annotations.feather").is_file() else "annotations_with_ego.feather"
-        expected += len(np.unique(feather.read_table(log_dir / name)["timestamp_ns"].to_numpy()))
+        path = next(log_dir.glob("annotations*.feather"))
+        expected += len(np.unique(feather.read_table(path)["timestamp_ns"].to_numpy()))
     assert frames.num_rows == expected == 313
     assert sorted(set(frames["split"].to_pylist())) == ["train", "val"]
     manifest = json.loads((prepared_av2 / "manifest.json").read_text())
@@ -103,7 +103,8 @@ def test_centerline_length_matches_shapely(prepared_av2, av2_root):
             lines = []
             for c in centerlines:
                 ego = ego_from_city.transform_point_cloud(c)
-                lines.append(shapely.LineString(np.stack([-ego[:, 1], ego[:, 0]], 1)))  # to x right, y forward
+                # to the BEV axes: x right, y forward
+                lines.append(shapely.LineString(np.stack([-ego[:, 1], ego[:, 0]], 1)))
             expected = shapely.length(shapely.intersection(np.array(lines), box)).sum()
             g = graphs[frame["frame_id"]]
             x, y = np.array(g["x"], np.float64), np.array(g["y"], np.float64)

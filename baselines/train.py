@@ -1,0 +1,262 @@
+"""One training loop for the baselines: CPU or CUDA (AMP), one process or DDP under `torchrun`.
+
+RUN_DIR gets config.json (the resolved config), run.json (data folder, world size), log.jsonl (one
+line per logged step) and checkpoint.pt (every epoch: model, optimiser, scheduler, scaler and every
+rank's RNG state, so that `resume=True` continues exactly where the run stopped).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import time
+from contextlib import nullcontext
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader, DistributedSampler
+
+from baselines.config import Config
+from baselines.data import PreparedDataset, collate
+from baselines.lanegap import LaneGAP, LaneGAPLoss
+
+console = Console(stderr=True)
+
+
+def lr_factor(step: int, total_steps: int, config: Config) -> float:
+    """Linear warm-up from warmup_ratio, then cosine decay to min_lr_ratio (mmcv's CosineAnnealing)."""
+    train = config.train
+    progress = min(step / max(total_steps, 1), 1.0)
+    cosine = train.min_lr_ratio + (1 - train.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * progress))
+    if step < train.warmup_iters:
+        cosine *= train.warmup_ratio + (1 - train.warmup_ratio) * step / train.warmup_iters
+    return cosine
+
+
+def build_optimizer(model: torch.nn.Module, config: Config) -> torch.optim.AdamW:
+    train = config.train
+    backbone, rest = [], []
+    for name, parameter in model.named_parameters():
+        if parameter.requires_grad:
+            (backbone if name.startswith("encoder.camera.backbone.") else rest).append(parameter)
+    groups = [{"params": rest, "lr": train.lr}]
+    if backbone:  # MapTR trains the pretrained image backbone at a tenth of the learning rate
+        groups.append({"params": backbone, "lr": train.lr * train.backbone_lr_mult})
+    return torch.optim.AdamW(
+        groups, lr=train.lr, betas=train.betas, eps=train.eps, weight_decay=train.weight_decay
+    )
+
+
+def rng_state() -> dict:
+    return {
+        "python": random.getstate(),
+        "numpy": np.random.get_state(),
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+    }
+
+
+def set_rng_state(state: dict) -> None:
+    random.setstate(state["python"])
+    np.random.set_state(state["numpy"])
+    torch.set_rng_state(state["torch"])
+    if state["cuda"] and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
+
+
+def amp_settings(device: torch.device, enabled: bool) -> tuple[torch.dtype | None, bool]:
+    """(autocast dtype or None, whether a GradScaler is needed)."""
+    if device.type != "cuda" or not enabled:
+        return None, False
+    if torch.cuda.is_bf16_supported():
+        return torch.bfloat16, False
+    return torch.float16, True
+
+
+def save_atomic(obj: object, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, stop_after: int = 0) -> dict:
+    """Train `config` on the prepared dataset `data_dir`; returns a summary (loss, steps/s, seconds).
+
+    resume: continue from out_dir/checkpoint.pt. stop_after: end this run after that many epochs
+    (0: run to config.train.epochs), e.g. to fit a time-limited job; a later resume carries on.
+    """
+    data_dir, out_dir = Path(data_dir), Path(out_dir)
+    world_size = int(os.environ.get("WORLD_SIZE", "1"))
+    distributed = world_size > 1
+    if distributed:
+        dist.init_process_group(backend="nccl" if torch.cuda.is_available() else "gloo")
+    rank = dist.get_rank() if distributed else 0
+    local_rank = int(os.environ.get("LOCAL_RANK", "0"))
+    master = rank == 0
+    if torch.cuda.is_available():
+        device = torch.device("cuda", local_rank)
+        torch.cuda.set_device(device)
+        torch.backends.cudnn.benchmark = True
+    else:
+        device = torch.device("cpu")
+    train_config = config.train
+    if train_config.threads:
+        torch.set_num_threads(train_config.threads)
+    if train_config.batch_size % world_size:
+        raise ValueError(f"batch size {train_config.batch_size} is not divisible by {world_size} processes")
+
+    # The same seed on every rank builds the same model; the ranks' streams differ from here on.
+    torch.manual_seed(train_config.seed)
+    model = LaneGAP(config).to(device)
+    criterion = LaneGAPLoss(config.decoder)
+    random.seed(train_config.seed + rank)
+    np.random.seed(train_config.seed + rank)
+    torch.manual_seed(train_config.seed + rank)
+
+    dataset = PreparedDataset(data_dir, train_config.train_split, config)
+    # One sampler for one or many processes: its order depends on (seed, epoch) only.
+    sampler = DistributedSampler(
+        dataset, num_replicas=world_size, rank=rank, shuffle=True, seed=train_config.seed
+    )
+    loader = DataLoader(
+        dataset,
+        batch_size=train_config.batch_size // world_size,
+        sampler=sampler,
+        num_workers=config.data.num_workers,
+        collate_fn=collate,
+        pin_memory=device.type == "cuda",
+        drop_last=len(dataset) >= train_config.batch_size,
+    )
+    steps_per_epoch = len(loader)
+    total_steps = steps_per_epoch * train_config.epochs
+    optimizer = build_optimizer(model, config)
+    scheduler = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda step: lr_factor(step, total_steps, config)
+    )
+    autocast_dtype, needs_scaler = amp_settings(device, train_config.amp)
+    scaler = torch.amp.GradScaler("cuda", enabled=needs_scaler)
+
+    start_epoch, step = 0, 0
+    checkpoint_path = out_dir / "checkpoint.pt"
+    if resume:
+        checkpoint = torch.load(checkpoint_path, map_location=device, weights_only=False)
+        model.load_state_dict(checkpoint["model"])
+        optimizer.load_state_dict(checkpoint["optimizer"])
+        scheduler.load_state_dict(checkpoint["scheduler"])
+        scaler.load_state_dict(checkpoint["scaler"])
+        start_epoch, step = checkpoint["epoch"], checkpoint["step"]
+        set_rng_state(checkpoint["rng"][rank])
+        if master:  # drop log lines of steps after the checkpoint (an interrupted epoch)
+            lines = (out_dir / "log.jsonl").read_text().splitlines()
+            kept = [line for line in lines if json.loads(line)["step"] <= step]
+            (out_dir / "log.jsonl").write_text("".join(line + "\n" for line in kept))
+    elif master:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        config.save(out_dir / "config.json")
+        run = {"data": str(data_dir.resolve()), "world_size": world_size, "device": device.type}
+        (out_dir / "run.json").write_text(json.dumps(run, indent=2) + "\n")
+        (out_dir / "log.jsonl").write_text("")
+    if master:
+        parameters = sum(p.numel() for p in model.parameters())
+        console.print(
+            f"lanegap {config.encoder.modality}: {parameters / 1e6:.2f} M parameters, {len(dataset)} frames, "
+            f"{steps_per_epoch} steps per epoch, {world_size} process(es) on {device.type}"
+        )
+    if distributed:
+        trained = DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None)
+    else:
+        trained = model
+
+    columns = [
+        TextColumn("epoch {task.fields[epoch]}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("loss {task.fields[loss]:.3f}  {task.fields[speed]:.2f} steps/s"),
+        TimeElapsedColumn(),
+    ]
+    progress = Progress(*columns, console=console, disable=not master)
+    log_file = (out_dir / "log.jsonl").open("a") if master else None
+    train_seconds, train_steps, loss_value = 0.0, 0, float("nan")
+    with progress:
+        task = progress.add_task(
+            "train", total=total_steps, completed=step, epoch=start_epoch, loss=0.0, speed=0.0
+        )
+        last_epoch = min(train_config.epochs, start_epoch + stop_after) if stop_after else train_config.epochs
+        for epoch in range(start_epoch, last_epoch):
+            model.train()
+            sampler.set_epoch(epoch)
+            epoch_start = last = time.perf_counter()
+            for batch in loader:  # the step time below includes the wait for data
+                batch = batch.to(device)
+                autocast = (
+                    torch.autocast(device.type, dtype=autocast_dtype) if autocast_dtype else nullcontext()
+                )
+                with autocast:
+                    outputs = trained(batch.sensors)
+                losses = criterion(outputs, batch.paths, batch.seg)
+                optimizer.zero_grad(set_to_none=True)
+                scaler.scale(losses["loss"]).backward()
+                scaler.unscale_(optimizer)
+                grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), train_config.grad_clip)
+                scaler.step(optimizer)
+                scaler.update()
+                scheduler.step()
+                step += 1
+                if device.type == "cuda":
+                    torch.cuda.synchronize(device)
+                now = time.perf_counter()
+                train_seconds += now - last
+                last = now
+                train_steps += 1
+                loss_value = float(losses["loss"].detach())
+                speed = train_steps / train_seconds
+                progress.update(task, advance=1, epoch=epoch + 1, loss=loss_value, speed=speed)
+                if log_file is not None and (step % train_config.log_every == 0 or step == total_steps):
+                    record = {
+                        "step": step,
+                        "epoch": epoch + 1,
+                        "lr": optimizer.param_groups[0]["lr"],
+                        **{k: float(v.detach()) for k, v in losses.items()},
+                        "grad_norm": float(grad_norm),
+                        "steps_per_s": speed,
+                        "samples_per_s": speed * train_config.batch_size,
+                        "epoch_seconds": time.perf_counter() - epoch_start,
+                    }
+                    log_file.write(json.dumps(record) + "\n")
+                    log_file.flush()
+            states = [None] * world_size
+            if distributed:
+                dist.all_gather_object(states, rng_state())
+            else:
+                states = [rng_state()]
+            if master:
+                checkpoint = {
+                    "model": model.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "scheduler": scheduler.state_dict(),
+                    "scaler": scaler.state_dict(),
+                    "epoch": epoch + 1,
+                    "step": step,
+                    "rng": states,
+                    "config": config.to_dict(),
+                }
+                save_atomic(checkpoint, checkpoint_path)
+    if log_file is not None:
+        log_file.close()
+    summary = {
+        "final_loss": loss_value,
+        "steps": step,
+        "train_seconds": train_seconds,
+        "steps_per_s": train_steps / train_seconds if train_seconds else 0.0,
+    }
+    if distributed:
+        dist.barrier()
+        dist.destroy_process_group()
+    return summary

@@ -1,0 +1,181 @@
+"""Data loading, training loop, resume and DDP of the baselines on a toy prepared dataset.
+
+The toy dataset is written here (Parquet tables in the docs/DATA.md schema, JPEG images, AV2-style
+LiDAR feathers), so these tests need neither `cli synth` nor `cli prepare`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pyarrow as pa
+import pyarrow.feather as feather
+import pytest
+import torch
+import torch.multiprocessing as mp
+
+from baselines.config import Config, tiny
+from baselines.data import PreparedDataset, collate, resample_polyline, scaled_intrinsics
+from baselines.train import lr_factor, train
+from pipeline import io
+
+
+def front_camera_pose(yaw: float) -> np.ndarray:
+    forward = np.array([np.sin(yaw), np.cos(yaw), 0.0])
+    right = np.array([np.cos(yaw), -np.sin(yaw), 0.0])
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([right, [0.0, 0.0, -1.0], forward], 1)
+    pose[2, 3] = 1.5
+    return pose
+
+
+def write_toy_dataset(root: Path, frames: int = 6, split: str = "train") -> Path:
+    """A prepared dataset at root/prepared whose sensors lie under root/raw: straight lanes at random x."""
+    rng = np.random.default_rng(0)
+    raw, out = root / "raw", root / "prepared"
+    intrinsics = np.array([[60.0, 0, 79.5], [0, 60.0, 47.5], [0, 0, 1]])
+    frame_rows, path_rows = [], []
+    for i in range(frames):
+        frame_id = f"av2/toy/{i}"
+        cameras = []
+        for c, yaw in enumerate((0.0, np.pi)):
+            relative = f"toy/{i}_{c}.jpg"
+            (raw / "toy").mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(raw / relative), rng.integers(0, 255, (96, 160, 3), dtype=np.uint8))
+            cameras.append(
+                {
+                    "name": f"cam{c}",
+                    "image_path": relative,
+                    "intrinsics": intrinsics.flatten().tolist(),
+                    "sensor_to_ego": front_camera_pose(yaw).flatten().tolist(),
+                    "width": 160,
+                    "height": 96,
+                }
+            )
+        points = rng.uniform([-20, -20, -1, 0], [20, 35, 1, 255], (3000, 4)).astype(np.float32)
+        lidar = f"toy/{i}.feather"
+        feather.write_feather(pa.table({k: points[:, j] for j, k in enumerate("xyz")} | {
+            "intensity": points[:, 3].astype(np.uint8)}), str(raw / lidar))  # fmt: skip
+        for p, x in enumerate(rng.uniform(-12, 12, 2)):
+            ys = np.linspace(-30, 30, 7, dtype=np.float32)
+            xs = np.full(7, x, np.float32)
+            r = resample_polyline(np.stack([xs, ys], 1), 20).astype(np.float32)
+            path_rows.append(
+                {"frame_id": frame_id, "path_index": p, "vertex_ids": list(range(p * 7, p * 7 + 7)),
+                 "x": xs.tolist(), "y": ys.tolist(), "rx": r[:, 0].tolist(), "ry": r[:, 1].tolist(),
+                 "length": 60.0}
+            )  # fmt: skip
+        frame_rows.append(
+            {"frame_id": frame_id, "dataset": "av2", "split": split, "log_id": "toy", "timestamp_ns": i,
+             "city": "toy", "pose_translation": [0.0, 0.0, 0.0], "pose_rotation": [1.0, 0.0, 0.0, 0.0],
+             "cameras": cameras, "lidar_path": lidar, "lidar_to_ego": np.eye(4).flatten().tolist(),
+             "n_vertices": 14, "n_edges": 12, "n_paths": 2, "n_pieces": 2, "n_junctions": 0,
+             "path_cap_hit": False}
+        )  # fmt: skip
+    tables = {
+        "frames": pa.Table.from_pylist(frame_rows, io.SCHEMAS["frames"]),
+        "paths": pa.Table.from_pylist(path_rows, io.SCHEMAS["paths"]),
+    }
+    io.write_shard(out, f"{split}__toy", tables)
+    (out / "manifest.json").write_text(json.dumps({"root": str(raw)}))
+    return out
+
+
+def toy_config(modality: str = "lidar", epochs: int = 2) -> Config:
+    config = tiny()
+    config.encoder.modality = modality
+    config.data.image_scale_av2 = 0.25
+    config.train.epochs = epochs
+    config.train.batch_size = 2
+    config.train.warmup_iters = 2
+    config.train.log_every = 1
+    config.train.threads = 1
+    return config
+
+
+def test_lr_schedule_warms_up_then_decays():
+    config = tiny()
+    config.train.warmup_iters = 10
+    factors = [lr_factor(step, 100, config) for step in range(101)]
+    assert factors[0] == pytest.approx(config.train.warmup_ratio)
+    assert factors[10] == pytest.approx(0.5 * (1 + np.cos(np.pi * 0.1)) * (1 - 1e-3) + 1e-3)
+    assert factors[100] == pytest.approx(config.train.min_lr_ratio)
+    assert all(a >= b for a, b in zip(factors[10:], factors[11:], strict=False))
+
+
+def test_scaled_intrinsics_keep_projections_consistent():
+    k = np.array([[100.0, 0, 79.5], [0, 100.0, 47.5], [0, 0, 1]])
+    scaled = scaled_intrinsics(k, 0.5, 0.5)
+    point = np.array([1.0, -0.5, 4.0])
+    pixel = (k @ point)[:2] / point[2]
+    assert np.allclose((scaled @ point)[:2] / point[2], (pixel + 0.5) * 0.5 - 0.5)
+
+
+def test_dataset_reads_sensors_and_targets(tmp_path):
+    data = write_toy_dataset(tmp_path, frames=2)
+    config = toy_config("fusion")
+    dataset = PreparedDataset(data, "train", config)
+    sample = dataset[0]
+    assert sample.images.shape == (2, 3, 32, 64)  # 96 x 160 at 0.25 -> 24 x 40, padded to 32 x 64
+    assert sample.image_sizes.tolist() == [[24, 40], [24, 40]]
+    assert sample.paths.shape == (2, 20, 2) and 0 <= sample.paths.min() and sample.paths.max() <= 1
+    assert np.allclose(sample.paths[:, 0, 1], 1.0) and np.allclose(sample.paths[:, -1, 1], 0.0)  # y=-30 .. 30
+    assert sample.seg.shape == (40, 20) and sample.seg.sum() > 0
+    points = sample.points
+    assert points.shape[1] == 4 and np.all(np.abs(points[:, 0]) <= 15) and np.all(points[:, 3] <= 1)
+    config.decoder.path_points = 10  # a different N is resampled from the full polylines
+    assert PreparedDataset(data, "train", config)[0].paths.shape == (2, 10, 2)
+    batch = collate([dataset[0], dataset[1]])
+    assert batch.sensors.images.shape == (2, 2, 3, 32, 64) and batch.sensors.points_mask.any(1).all()
+
+
+def test_training_resumes_exactly(tmp_path):
+    data = write_toy_dataset(tmp_path, frames=4)
+    config = toy_config("camera", epochs=2)
+    straight = train(config, data, tmp_path / "straight")
+    assert straight["steps"] == 4
+    train(config, data, tmp_path / "resumed", stop_after=1)
+    assert torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=False)["epoch"] == 1
+    train(Config.load(tmp_path / "resumed" / "config.json"), data, tmp_path / "resumed", resume=True)
+    a = torch.load(tmp_path / "straight" / "checkpoint.pt", weights_only=False)
+    b = torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=False)
+    assert a["step"] == b["step"] == 4
+    for name, tensor in a["model"].items():
+        assert torch.equal(tensor, b["model"][name]), name
+    log = [json.loads(line) for line in (tmp_path / "resumed" / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [1, 2, 3, 4] and all(np.isfinite(r["loss"]) for r in log)
+    assert Config.load(tmp_path / "straight" / "config.json") == config
+
+
+def _ddp_worker(rank: int, world_size: int, port: int, data: str, out: str) -> None:
+    os.environ.update(
+        {"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "WORLD_SIZE": str(world_size),
+         "RANK": str(rank), "LOCAL_RANK": str(rank)}
+    )  # fmt: skip
+    config = toy_config("lidar", epochs=1)
+    config.train.batch_size = 4
+    summary = train(config, Path(data), Path(out))
+    Path(out, f"summary_{rank}.json").write_text(json.dumps(summary))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_ddp_two_processes_on_cpu(tmp_path):
+    data = write_toy_dataset(tmp_path, frames=8)
+    out = tmp_path / "ddp"
+    mp.spawn(_ddp_worker, args=(2, free_port(), str(data), str(out)), nprocs=2, join=True)
+    summaries = [json.loads((out / f"summary_{rank}.json").read_text()) for rank in range(2)]
+    assert [s["steps"] for s in summaries] == [2, 2]  # 8 frames, 4 per step over 2 processes
+    assert json.loads((out / "run.json").read_text())["world_size"] == 2
+    checkpoint = torch.load(out / "checkpoint.pt", weights_only=False)
+    assert checkpoint["epoch"] == 1 and len(checkpoint["rng"]) == 2
+    assert len((out / "log.jsonl").read_text().splitlines()) == 2  # rank 0 writes

@@ -198,7 +198,9 @@ def prepare_log(
     for frame in log.frames:
         try:
             if not np.isfinite(frame.ego_to_world).all():
-                raise DataError(log.source, f"frame {frame.frame_id}", "ego pose has NaN or infinite values")
+                raise DataError(
+                    log.pose_source, f"frame {frame.frame_id}", "ego pose has NaN or infinite values"
+                )
             pose = flat_pose(frame.ego_to_world) if log.map_is_2d else frame.ego_to_world
             targets.append(frame_targets(lane_map, pose, options))
             frames.append(frame)

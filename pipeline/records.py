@@ -55,3 +55,4 @@ class Log:
     lanes: list[Lane]
     frames: list[Frame]
     map_is_2d: bool = False  # nuScenes maps have no heights: crop with the pose's yaw alone
+    pose_source: str = ""  # the file the ego poses came from, for error messages

@@ -178,4 +178,5 @@ def load_log(ref: SceneRef, margin: float) -> Log:
     centre = (positions.min(0) + positions.max(0)) / 2
     radius = np.linalg.norm(positions.max(0) - positions.min(0)) / 2 + margin
     lanes = lanes_near(ref.dataroot, map_name, centre, radius)
-    return Log("nuscenes", ref.split, scene["name"], str(ref.dataroot / ref.version), lanes, frames, True)
+    tables = str(ref.dataroot / ref.version)
+    return Log("nuscenes", ref.split, scene["name"], tables, lanes, frames, True, f"{tables}/ego_pose.json")

@@ -1,0 +1,113 @@
+"""Bad input: each case gets correct output or a clear error naming the file and record, and a
+failed run leaves no partial shard behind."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.feather as feather
+import pytest
+
+from pipeline.errors import DataError
+from pipeline.io import read_table
+from pipeline.prepare import prepare
+from pipeline.targets import TargetOptions
+
+TRAIN_LOG = "adcf7d18-0510-35b0-a2fa-b4cea13a6d76"
+
+
+@pytest.fixture
+def root(av2_root, tmp_path):
+    """A writable copy of the real train log (and the val log) to damage."""
+    copy = tmp_path / "sensor"
+    shutil.copytree(av2_root, copy)
+    return copy
+
+
+def run(root, out, **kw):
+    return prepare("av2", root, out, TargetOptions(), **kw)
+
+
+def no_partial_files(out):
+    return not [p for p in out.rglob("*") if p.name.startswith(".") or p.name.endswith(".tmp")]
+
+
+def test_missing_map_file(root, tmp_path):
+    for f in (root / "train" / TRAIN_LOG / "map").glob("log_map_archive_*.json"):
+        f.unlink()
+    with pytest.raises(DataError, match="log_map_archive"):
+        run(root, tmp_path / "out", split="train")
+
+
+def test_malformed_map_json_fails_cleanly_and_skip_goes_on(root, tmp_path):
+    (path,) = (root / "train" / TRAIN_LOG / "map").glob("log_map_archive_*.json")
+    path.write_text(path.read_text()[:5000])
+    out = tmp_path / "out"
+    with pytest.raises(DataError) as error:
+        run(root, out)
+    assert path.name in str(error.value) and "cannot be read" in str(error.value)
+    assert no_partial_files(out)
+    assert not list((out / "frames").glob("train__*")) if (out / "frames").exists() else True
+
+    summary = run(root, out, on_error="skip")
+    assert summary["frames"] == 157 and summary["frames_skipped"] == 156
+    lines = [json.loads(line) for line in (out / "errors.jsonl").read_text().splitlines()]
+    assert len(lines) == 1 and lines[0]["log"] == TRAIN_LOG and path.name in lines[0]["error"]
+
+
+def test_missing_pose_file(root, tmp_path):
+    (root / "train" / TRAIN_LOG / "city_SE3_egovehicle.feather").unlink()
+    with pytest.raises(DataError, match="city_SE3_egovehicle.feather: ego poses: file not found"):
+        run(root, tmp_path / "out", split="train")
+
+
+def test_nan_pose_names_the_frame(root, tmp_path):
+    path = root / "train" / TRAIN_LOG / "city_SE3_egovehicle.feather"
+    poses = feather.read_table(path).to_pandas()
+    poses.loc[100:140, "tx_m"] = np.nan  # 0.2 s of poses at ~200 Hz: the frames there use them
+    feather.write_feather(pa.Table.from_pandas(poses, preserve_index=False), path)
+    out = tmp_path / "out"
+    with pytest.raises(DataError, match=f"frame av2/{TRAIN_LOG}/") as error:
+        run(root, out, split="train")
+    assert "NaN" in str(error.value)
+    assert no_partial_files(out) and not (out / "frames").exists()
+    summary = run(root, out, split="train", on_error="skip")
+    assert 1 <= summary["frames_skipped"] <= 3 and summary["frames"] == 156 - summary["frames_skipped"]
+    errors = [json.loads(line) for line in (out / "errors.jsonl").read_text().splitlines()]
+    assert all(e["frame_id"].startswith(f"av2/{TRAIN_LOG}/") for e in errors)
+
+
+def test_unknown_successor_ids_are_ignored(root, tmp_path):
+    (path,) = (root / "train" / TRAIN_LOG / "map").glob("log_map_archive_*.json")
+    data = json.loads(path.read_text())
+    for segment in data["lane_segments"].values():
+        segment["successors"] = segment["successors"] + [999999999]
+    path.write_text(json.dumps(data))
+    out = tmp_path / "out"
+    assert run(root, out, split="train")["frames"] == 156
+
+
+def test_empty_crop_is_a_valid_empty_frame(root, tmp_path):
+    path = root / "train" / TRAIN_LOG / "city_SE3_egovehicle.feather"
+    poses = feather.read_table(path).to_pandas()
+    poses["tx_m"] += 10_000.0  # drive far away from every lane
+    feather.write_feather(pa.Table.from_pandas(poses, preserve_index=False), path)
+    out = tmp_path / "out"
+    assert run(root, out, split="train")["frames"] == 156
+    graphs = read_table(out, "graphs").to_pylist()
+    assert all(g["x"] == [] and g["src"] == [] for g in graphs)
+    assert read_table(out, "paths").num_rows == 0 and read_table(out, "pieces").num_rows == 0
+
+
+def test_rerun_skips_finished_shards_and_overwrite_redoes_them(av2_root, tmp_path):
+    out = tmp_path / "out"
+    first = run(av2_root, out)
+    assert first["logs_prepared"] == 2
+    second = run(av2_root, out)
+    assert second["logs_prepared"] == 0 and second["logs_already_done"] == 2
+    assert read_table(out, "frames").num_rows == 313
+    third = run(av2_root, out, overwrite=True)
+    assert third["logs_prepared"] == 2 and read_table(out, "frames").num_rows == 313

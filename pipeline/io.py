@@ -140,6 +140,11 @@ def count_rows(out: Path, table: str) -> int:
     return sum(pq.read_metadata(p).num_rows for p in sorted((out / table).glob("*.parquet")))
 
 
+def encode_mask(mask: np.ndarray) -> bytes:
+    """A 0/1 mask packed to bits, then zlib: 8x less to compress on the hot path."""
+    return zlib.compress(np.packbits(mask.astype(bool)).tobytes(), 1)
+
+
 def encode_raster(array: np.ndarray) -> bytes:
     return zlib.compress(np.ascontiguousarray(array, np.uint8).tobytes(), 1)
 
@@ -147,6 +152,7 @@ def encode_raster(array: np.ndarray) -> bytes:
 def decode_raster(row: dict) -> tuple[np.ndarray, np.ndarray]:
     """(mask, direction) uint8 arrays of one `rasters` row (a dict, e.g. from Table.to_pylist())."""
     shape = (row["height"], row["width"])
-    mask = np.frombuffer(zlib.decompress(row["mask"]), np.uint8).reshape(shape)
+    bits = np.frombuffer(zlib.decompress(row["mask"]), np.uint8)
+    mask = np.unpackbits(bits, count=shape[0] * shape[1]).reshape(shape)
     direction = np.frombuffer(zlib.decompress(row["direction"]), np.uint8).reshape(shape)
     return mask, direction

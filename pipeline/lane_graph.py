@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from pipeline.geometry import Range, clip_polylines
 from pipeline.records import Lane
@@ -67,6 +66,34 @@ class LaneMap:
         )
 
 
+@numba.njit(cache=True)
+def merge_labels(n, a, b):
+    """Union-find over n points joined in pairs (a[k], b[k]): a label per point, numbered in order of
+    first appearance. A numba kernel: scipy's connected_components costs more in set-up than the
+    handful of merges of a frame."""
+    parent = np.arange(n)
+    for k in range(a.shape[0]):
+        ra, rb = a[k], b[k]
+        while parent[ra] != ra:
+            ra = parent[ra]
+        while parent[rb] != rb:
+            rb = parent[rb]
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    label = np.empty(n, np.int64)
+    count = 0
+    for i in range(n):
+        root = i
+        while parent[root] != root:
+            root = parent[root]
+        if root == i:
+            label[i] = count
+            count += 1
+        else:
+            label[i] = label[root]  # root < i is labelled already
+    return label
+
+
 def crop_lane_graph(lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range) -> LaneGraph:
     """The lane graph of one frame: every centerline moved into the ego frame and clipped to rng.
 
@@ -110,8 +137,7 @@ def crop_lane_graph(lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range) -> 
     ok = (a >= 0) & (b >= 0)
     a, b = end_vertex[a[ok]], start_vertex[b[ok]]
     ok = (a >= 0) & (b >= 0)
-    union = coo_matrix((np.ones(ok.sum()), (a[ok], b[ok])), shape=(n, n))
-    _, label = connected_components(union, directed=False)
+    label = merge_labels(n, a[ok], b[ok])
     n_vertices = label.max() + 1
     size = np.bincount(label, minlength=n_vertices)
     x = np.bincount(label, points[:, 0], n_vertices) / size

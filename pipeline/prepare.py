@@ -19,7 +19,7 @@ from pipeline.errors import DataError
 from pipeline.geometry import matrix_quaternion
 from pipeline.lane_graph import LaneMap
 from pipeline.records import Frame, Log
-from pipeline.targets import FrameTargets, TargetOptions, flat_pose, frame_targets
+from pipeline.targets import FrameTargets, TargetOptions, flat_pose, frame_targets, warm_up
 
 console = Console(stderr=True)
 
@@ -173,7 +173,7 @@ def log_tables(
                 "width": pa.array([width] * len(ids), pa.int32()),
                 "resolution": pa.array([options.resolution] * len(ids), pa.float32()),
                 "line_width": pa.array([options.line_width] * len(ids), pa.int32()),
-                "mask": pa.array([io.encode_raster(t.mask) for t in targets], pa.binary()),
+                "mask": pa.array([io.encode_mask(t.mask) for t in targets], pa.binary()),
                 "direction": pa.array([io.encode_raster(t.direction) for t in targets], pa.binary()),
             }
         ),
@@ -282,6 +282,7 @@ def prepare(
                 )
         else:
             # fork: workers inherit the loaded nuScenes tables instead of reading them again
+            warm_up()
             context = multiprocessing.get_context("fork")
             with context.Pool(workers) as pool:
                 args = [(job, out, options, frame_stride, on_error) for job in todo]

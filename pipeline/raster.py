@@ -39,15 +39,13 @@ class Grid:
 
 def rasterize(graph: LaneGraph, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
     """(mask, direction) uint8 arrays of grid.shape: every edge drawn line_width pixels wide."""
-    mask = np.zeros(grid.shape, np.uint8)
     direction = np.zeros(grid.shape, np.uint8)
     if len(graph.src) == 0:
-        return mask, direction
+        return direction.copy(), direction
     # pixel (c, r) covers [c, c + 1) x [r, r + 1); cv2 puts pixel centres at integers, hence - 0.5
     uv = grid.to_pixels(graph.x.astype(np.float64), graph.y.astype(np.float64)) - 0.5
     fixed = np.round(uv * (1 << SUBPIXEL_BITS)).astype(np.int32)
     segments = np.stack([fixed[graph.src], fixed[graph.dst]], axis=1)  # (E, 2, 2)
-    cv2.polylines(mask, list(segments), False, 1, grid.line_width, cv2.LINE_8, SUBPIXEL_BITS)
     bins = grid.direction_bin(
         graph.x[graph.dst] - graph.x[graph.src], graph.y[graph.dst] - graph.y[graph.src]
     )
@@ -56,4 +54,5 @@ def rasterize(graph: LaneGraph, grid: Grid) -> tuple[np.ndarray, np.ndarray]:
         cv2.polylines(
             direction, list(segments[bins == b]), False, b, grid.line_width, cv2.LINE_8, SUBPIXEL_BITS
         )
-    return mask, direction
+    # the same segments at the same width cover the same pixels: the mask is where a direction is
+    return (direction > 0).view(np.uint8), direction

@@ -11,6 +11,7 @@ from pipeline.lane_graph import LaneGraph, LaneMap, crop_lane_graph
 from pipeline.paths import Paths, pieces_to_paths
 from pipeline.pieces import Pieces, graph_to_pieces
 from pipeline.raster import Grid, rasterize
+from pipeline.records import Lane
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,13 @@ def flat_pose(ego_to_world: np.ndarray) -> np.ndarray:
     return flat
 
 
+def rigid_inverse(T: np.ndarray) -> np.ndarray:
+    inverse = np.eye(4)
+    inverse[:3, :3] = T[:3, :3].T
+    inverse[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return inverse
+
+
 def resample(chains: list[np.ndarray], graph: LaneGraph, n_points: int) -> tuple[np.ndarray, np.ndarray]:
     if not chains:
         return np.zeros((0, n_points, 2)), np.zeros(0)
@@ -58,8 +66,15 @@ def resample(chains: list[np.ndarray], graph: LaneGraph, n_points: int) -> tuple
     return resample_polylines(xy, offsets, n_points)
 
 
+def warm_up() -> None:
+    """Load the numba kernels once (before forking workers, so that each does not load them again)."""
+    lane_map = LaneMap.from_lanes([Lane("a", np.array([[0.0, 0, 0], [1, 0, 0]]), ["b"]),
+                                   Lane("b", np.array([[1.0, 0, 0], [2, 0, 0]]), [])])  # fmt: skip
+    frame_targets(lane_map, np.eye(4), TargetOptions())
+
+
 def frame_targets(lane_map: LaneMap, ego_to_world: np.ndarray, options: TargetOptions) -> FrameTargets:
-    graph = crop_lane_graph(lane_map, np.linalg.inv(ego_to_world), options.rng)
+    graph = crop_lane_graph(lane_map, rigid_inverse(ego_to_world), options.rng)
     pieces = graph_to_pieces(graph)
     paths = pieces_to_paths(pieces, len(graph.x), options.max_paths)
     path_points, path_lengths = resample(paths.vertex_ids, graph, options.path_points)

@@ -75,8 +75,8 @@ def frame_timestamps(log_dir: Path) -> np.ndarray:
     raise DataError(log_dir, "frames", "no sensors/lidar/ sweeps and no annotations feather to key frames by")
 
 
-def read_poses(log_dir: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Sorted pose timestamps and the (N, 4, 4) egovehicle-to-city transforms (av2 API)."""
+def read_poses(log_dir: Path) -> tuple[np.ndarray, dict]:
+    """Sorted pose timestamps and the av2 API's timestamp -> egovehicle-to-city SE3 mapping."""
     from av2.utils.io import read_city_SE3_ego
 
     path = log_dir / "city_SE3_egovehicle.feather"
@@ -86,9 +86,10 @@ def read_poses(log_dir: Path) -> tuple[np.ndarray, np.ndarray]:
         poses = read_city_SE3_ego(log_dir)
     except Exception as error:
         raise DataError(path, "ego poses", f"cannot be read: {type(error).__name__}: {error}") from error
-    times = np.array(sorted(poses), np.int64)
-    matrices = np.stack([poses[t].transform_matrix for t in times]) if len(times) else np.zeros((0, 4, 4))
-    return times, matrices  # a pose with NaN is reported by `prepare` for the frames that use it
+    if not poses:
+        raise DataError(path, "ego poses", "no pose rows")
+    # a pose with NaN is reported by `prepare` for the frames that use it
+    return np.array(sorted(poses), np.int64), poses
 
 
 def read_cameras(log_dir: Path) -> dict[str, tuple[np.ndarray, np.ndarray, int, int, np.ndarray]]:
@@ -121,13 +122,11 @@ def nearest(times: np.ndarray, t: int) -> int:
 def load_log(root: Path, split: str, log_dir: Path, frame_stride: int = 1) -> Log:
     lanes, city = read_lanes(log_dir)
     pose_times, ego_to_city = read_poses(log_dir)
-    if len(pose_times) == 0:
-        raise DataError(log_dir / "city_SE3_egovehicle.feather", "ego poses", "no pose rows")
     cameras = read_cameras(log_dir)
     has_lidar = (log_dir / "sensors" / "lidar").is_dir()
     frames = []
     for t in frame_timestamps(log_dir)[::frame_stride].tolist():
-        pose = ego_to_city[nearest(pose_times, t)] @ AV2_EGO_FROM_BEV
+        pose = ego_to_city[pose_times[nearest(pose_times, t)]].transform_matrix @ AV2_EGO_FROM_BEV
         frame_cameras = [
             Camera(
                 name,

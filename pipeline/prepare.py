@@ -263,6 +263,19 @@ def prepare(
         raise ValueError(f"--on-error must be fail or skip, not {on_error!r}")
     root, out = Path(root).resolve(), Path(out)
     jobs = find_jobs(dataset, root, version, split, frame_stride)
+    options_dict = asdict(options)
+    options_dict["rng"] = options.rng.text
+    parameters = {**options_dict, "frame_stride": frame_stride}
+    manifest_path = out / "manifest.json"
+    if manifest_path.is_file() and not overwrite:
+        # shards made with other options must not be mixed with new ones
+        before = json.loads(manifest_path.read_text())
+        old = {k: v for k, v in before.get("parameters", {}).items() if k != "split"}
+        if before.get("dataset") != dataset or old != parameters:
+            raise ValueError(
+                f"{out} was prepared with other options ({before.get('dataset')}, {old}); "
+                "pass --overwrite or choose another --out"
+            )
     out.mkdir(parents=True, exist_ok=True)
     todo = [j for j in jobs if overwrite or not io.shard_done(out, f"{j.split}__{j.name}")]
     results: list[LogResult] = []
@@ -310,8 +323,6 @@ def prepare(
         "seconds": elapsed,
         "frames_per_second": frames / elapsed if elapsed > 0 else 0.0,
     }
-    options_dict = asdict(options)
-    options_dict["rng"] = options.rng.text
     io.write_json(
         out / "manifest.json",
         {
@@ -319,7 +330,7 @@ def prepare(
             "dataset": dataset,
             "root": str(root),
             "version": version if dataset == "nuscenes" else None,
-            "parameters": {**options_dict, "frame_stride": frame_stride, "split": split},
+            "parameters": {**parameters, "split": split},
             "range": {"x_min": options.rng.x_min, "x_max": options.rng.x_max,
                       "y_min": options.rng.y_min, "y_max": options.rng.y_max},
             "packages": package_versions(),

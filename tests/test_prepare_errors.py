@@ -111,3 +111,14 @@ def test_rerun_skips_finished_shards_and_overwrite_redoes_them(av2_root, tmp_pat
     assert read_table(out, "frames").num_rows == 313
     third = run(av2_root, out, overwrite=True)
     assert third["logs_prepared"] == 2 and read_table(out, "frames").num_rows == 313
+
+
+def test_rerun_with_other_options_is_refused(av2_root, tmp_path):
+    out = tmp_path / "out"
+    run(av2_root, out, split="val")
+    with pytest.raises(ValueError, match="prepared with other options"):
+        prepare("av2", av2_root, out, TargetOptions(path_points=20), split="val")
+    assert (
+        prepare("av2", av2_root, out, TargetOptions(path_points=20), split="val", overwrite=True)["frames"]
+        == 157
+    )

@@ -31,3 +31,25 @@ def prepared_av2(av2_root, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("prepared_av2")
     prepare("av2", av2_root, out, TargetOptions())
     return out
+
+
+@pytest.fixture(scope="session")
+def synth_raw(tmp_path_factory) -> Path:
+    """The default synthetic raw dataset (both formats), seed 0."""
+    from pipeline.synth import synth
+
+    out = tmp_path_factory.mktemp("synth")
+    synth(out, logs=4, frames_per_log=20, seed=0)
+    return out
+
+
+@pytest.fixture(scope="session")
+def synth_prepared(synth_raw, tmp_path_factory) -> dict[str, Path]:
+    """The synthetic dataset prepared from each format: {'av2': dir, 'nuscenes': dir}."""
+    from pipeline.prepare import prepare
+    from pipeline.targets import TargetOptions
+
+    out = tmp_path_factory.mktemp("synth_prepared")
+    prepare("av2", synth_raw / "av2" / "sensor", out / "av2", TargetOptions())
+    prepare("nuscenes", synth_raw / "nuscenes", out / "nuscenes", TargetOptions(), version="v1.0-mini")
+    return {"av2": out / "av2", "nuscenes": out / "nuscenes"}

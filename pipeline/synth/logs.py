@@ -1,0 +1,143 @@
+"""Logs: which route each log drives, when, and the ego poses along it.
+
+Timestamps are shared by both formats (AV2 nanoseconds = nuScenes microseconds * 1000): frames (AV2
+sweeps and annotations, nuScenes samples) at 10 Hz, ego poses at 50 Hz so that every frame time has
+a pose at exactly that time. The ego's reference point (AV2 egovehicle, nuScenes ego_pose) follows
+the route's lane centerline at constant speed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.synth.geometry import Path
+from pipeline.synth.ids import uuid_like
+from pipeline.synth.world import Route, World
+
+FRAME_PERIOD_NS = 100_000_000  # 10 Hz
+POSE_PERIOD_NS = 20_000_000  # 50 Hz; five poses per frame period
+POSE_MARGIN_NS = FRAME_PERIOD_NS  # poses start before the first frame and end after the last, like real logs
+FIRST_LOG_S = 1_533_124_800  # 2018-08-01 12:00 UTC
+LEAD_GAP_M = 15.0  # a car drives this far ahead of the ego on its route, so that every frame has a cuboid
+
+# the official nuScenes v1.0-mini split names (nuscenes.utils.splits), so that its split machinery applies
+MINI_TRAIN = [
+    "scene-0061",
+    "scene-0553",
+    "scene-0655",
+    "scene-0757",
+    "scene-0796",
+    "scene-1077",
+    "scene-1094",
+    "scene-1100",
+]
+MINI_VAL = ["scene-0103", "scene-0916"]
+
+
+@dataclass(frozen=True)
+class LogPlan:
+    index: int
+    split: str  # "train" or "val"
+    log_id: str  # AV2 log id
+    scene_name: str  # nuScenes scene name
+    route: Route
+    path: Path  # the route's centerline
+    speed: float  # m/s
+    start_station: float  # metres along path at pose_ns[0]
+    pose_ns: np.ndarray  # (n,) int64
+    frame_ns: np.ndarray  # (frames,) int64, a subset of pose_ns
+
+    def ego_at(self, ns: np.ndarray) -> np.ndarray:
+        """(n, 3) ego x, y, heading in the world at the given times."""
+        return self.path.at(self.station(ns))
+
+    def lead_at(self, ns: np.ndarray) -> np.ndarray:
+        """(n, 3) pose of the car driving LEAD_GAP_M ahead (it waits at the route's end if it runs out)."""
+        return self.path.at(self.station(ns) + LEAD_GAP_M)
+
+    def station(self, ns: np.ndarray) -> np.ndarray:
+        return self.start_station + self.speed * (np.asarray(ns) - self.pose_ns[0]) * 1e-9
+
+
+def split_of_logs(logs: int) -> list[str]:
+    """3/4 train, the rest (1 or 2) val; bounded by the mini splits' 8 train and 2 val scene names."""
+    val = 0 if logs < 2 else min(len(MINI_VAL), max(1, logs // 4))
+    if not 1 <= logs or logs - val > len(MINI_TRAIN):
+        raise ValueError(
+            f"logs must be 1 to {len(MINI_TRAIN) + len(MINI_VAL)} (the nuScenes mini scene names)"
+        )
+    return ["train"] * (logs - val) + ["val"] * val
+
+
+def plan_logs(world: World, logs: int, frames_per_log: int, seed: int) -> list[LogPlan]:
+    if frames_per_log < 1:
+        raise ValueError("frames_per_log must be at least 1")
+    rng = np.random.default_rng([seed, 2])
+    plans, names = [], {"train": iter(MINI_TRAIN), "val": iter(MINI_VAL)}
+    for index, split in enumerate(split_of_logs(logs)):
+        route = world.routes[index % len(world.routes)]
+        path = Path(tuple(p for lane in route.lanes for p in world.lanes[lane].path.pieces))
+        duration_s = ((frames_per_log - 1) * FRAME_PERIOD_NS + 2 * POSE_MARGIN_NS) * 1e-9
+        speed = min(
+            route.speed, (path.length - LEAD_GAP_M) / duration_s
+        )  # slow down rather than run out of road
+        stations = np.linspace(0.0, path.length, int(path.length / 0.25) + 1)
+        focus = stations[np.hypot(*(path.at(stations)[:, :2] - np.array(route.focus)).T).argmin()]
+        start = float(
+            np.clip(focus - speed * duration_s / 2, 0.0, path.length - LEAD_GAP_M - speed * duration_s)
+        )
+        first_ns = (FIRST_LOG_S + 3600 * index) * 10**9 + int(
+            rng.integers(0, 10**9)
+        ) * 1000  # whole microseconds
+        pose_ns = first_ns + POSE_PERIOD_NS * np.arange(
+            round(duration_s * 1e9 / POSE_PERIOD_NS) + 1, dtype=np.int64
+        )
+        frame_ns = first_ns + POSE_MARGIN_NS + FRAME_PERIOD_NS * np.arange(frames_per_log, dtype=np.int64)
+        plans.append(
+            LogPlan(
+                index,
+                split,
+                uuid_like(seed, "av2 log", index),
+                next(names[split]),
+                route,
+                path,
+                speed,
+                start,
+                pose_ns,
+                frame_ns,
+            )
+        )
+    return plans
+
+
+@dataclass(frozen=True)
+class Cuboid:
+    """A car near the ego at one frame, in world coordinates."""
+
+    track: str  # uuid of the object, the same in every frame
+    moving: bool
+    x: float
+    y: float
+    heading: float
+    length: float
+    width: float
+    height: float
+    distance: float  # from the ego
+
+
+def frame_cuboids(world: World, plan: LogPlan, max_distance: float = 50.0) -> list[list[Cuboid]]:
+    """Per frame: the lead car, then the parked cars within max_distance of the ego."""
+    frames = []
+    for ego, lead in zip(plan.ego_at(plan.frame_ns), plan.lead_at(plan.frame_ns), strict=True):
+        objects = [(uuid_like(world.seed, "lead car", plan.index), True, *lead, 4.6, 1.9, 1.6)]
+        objects += [
+            (uuid_like(world.seed, "parked car", i), False, c.x, c.y, c.heading, c.length, c.width, c.height)
+            for i, c in enumerate(world.parked_cars)
+        ]
+        cuboids = [
+            Cuboid(*obj, distance=float(np.hypot(obj[2] - ego[0], obj[3] - ego[1]))) for obj in objects
+        ]
+        frames.append([c for c in cuboids if c.distance <= max_distance])
+    return frames

@@ -1,0 +1,246 @@
+"""nuScenes tables (`<root>/v1.0-mini/*.json`): one log and one scene per synthetic log, one sample per frame.
+
+Every table that nuscenes-devkit 1.2.0 loads is written. Each sample has key-frame sample_data for
+LIDAR_TOP (and the cameras when sensors are on), each with its own ego_pose, like the real tables.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta, timezone
+from pathlib import Path
+
+from pipeline.synth.av2_writer import yaw_quaternion
+from pipeline.synth.ids import token
+from pipeline.synth.logs import Cuboid, LogPlan, frame_cuboids
+from pipeline.synth.world import World
+
+VERSION = "v1.0-mini"
+BOSTON = timezone(timedelta(hours=-4))  # nuScenes log names carry the local time
+
+
+@dataclass(frozen=True)
+class Channel:
+    """A sensor as calibrated_sensor holds it: pose in the ego frame and, for cameras, the intrinsics."""
+
+    name: str
+    modality: str  # "lidar" or "camera"
+    translation: list[float]
+    rotation: list[float]  # w, x, y, z
+    intrinsic: list[list[float]] = field(default_factory=list)
+    width: int = 0
+    height: int = 0
+
+    @property
+    def extension(self) -> str:
+        return ".pcd.bin" if self.modality == "lidar" else ".jpg"
+
+
+# the real rig: LIDAR_TOP turned -90 deg about z, so its axes are x right, y forward
+LIDAR_TOP = Channel(
+    "LIDAR_TOP", "lidar", [0.943, 0.0, 1.84], [math.cos(-math.pi / 4), 0.0, 0.0, math.sin(-math.pi / 4)]
+)
+
+CATEGORIES = [
+    (
+        "vehicle.car",
+        "Vehicle designed primarily for personal use, e.g. sedans, hatch-backs, wagons, vans, SUVs.",
+    ),
+    (
+        "vehicle.truck",
+        "Vehicles primarily designed to haul cargo including pick-ups, lorrys, trucks and semi-tractors.",
+    ),
+    ("human.pedestrian.adult", "Adult subcategory."),
+    ("movable_object.trafficcone", "All types of traffic cone."),
+]
+ATTRIBUTES = [
+    ("vehicle.moving", "Vehicle is moving."),
+    (
+        "vehicle.stopped",
+        "Vehicle, with a driver/rider in/on it, is currently stationary but has an intent to move.",
+    ),
+    (
+        "vehicle.parked",
+        "Vehicle is stationary (usually for longer duration) with no immediate intent to move.",
+    ),
+]
+VISIBILITY = [("1", "v0-40"), ("2", "v40-60"), ("3", "v60-80"), ("4", "v80-100")]
+
+
+def logfile_name(plan: LogPlan) -> str:
+    local = datetime.fromtimestamp(int(plan.frame_ns[0]) // 10**9, UTC).astimezone(BOSTON)
+    return f"n008-{local:%Y-%m-%d-%H-%M-%S}-0400"
+
+
+def sample_filename(plan: LogPlan, channel: Channel, ns: int) -> str:
+    """Where a sensor file lies relative to the dataset root, named like the real ones."""
+    return f"samples/{channel.name}/{logfile_name(plan)}__{channel.name}__{ns // 1000}{channel.extension}"
+
+
+TABLES = (
+    "category",
+    "attribute",
+    "visibility",
+    "instance",
+    "sensor",
+    "calibrated_sensor",
+    "ego_pose",
+    "log",
+    "scene",
+    "sample",
+    "sample_data",
+    "sample_annotation",
+    "map",
+)
+
+
+class _Tables:
+    def __init__(self, seed: int):
+        self.seed = seed
+        self.records: dict[str, list[dict]] = {name: [] for name in TABLES}
+
+    def token(self, *parts: object) -> str:
+        return token(self.seed, "nuscenes", *parts)
+
+    def add(self, table: str, **fields) -> None:
+        self.records[table].append(fields)
+
+
+def _chain(tokens: list[str], i: int) -> dict[str, str]:
+    """The prev / next fields of record i of a time-ordered list."""
+    return {"prev": tokens[i - 1] if i else "", "next": tokens[i + 1] if i + 1 < len(tokens) else ""}
+
+
+def write_tables(
+    root: Path,
+    world: World,
+    plans: list[LogPlan],
+    channels: list[Channel],
+    map_name: str,
+    prior_filename: str,
+) -> None:
+    t = _Tables(world.seed)
+    for name, description in CATEGORIES:
+        t.add("category", token=t.token("category", name), name=name, description=description)
+    for name, description in ATTRIBUTES:
+        t.add("attribute", token=t.token("attribute", name), name=name, description=description)
+    for v, level in VISIBILITY:
+        between = level[1:].replace("-", " and ")
+        t.add(
+            "visibility",
+            description=f"visibility of whole object is between {between}%",
+            token=v,
+            level=level,
+        )
+    for c in channels:
+        t.add("sensor", token=t.token("sensor", c.name), channel=c.name, modality=c.modality)
+    for plan in plans:
+        _add_scene(t, plan, channels, map_name)
+        _add_annotations(t, world, plan)
+    log_tokens = [log["token"] for log in t.records["log"]]
+    t.add(
+        "map", category="semantic_prior", token=t.token("map"), filename=prior_filename, log_tokens=log_tokens
+    )
+    (root / VERSION).mkdir(parents=True, exist_ok=True)
+    for name, records in t.records.items():
+        (root / VERSION / f"{name}.json").write_text(json.dumps(records, indent=0))
+
+
+def _add_scene(t: _Tables, plan: LogPlan, channels: list[Channel], map_name: str) -> None:
+    i = plan.index
+    log_token, scene_token, logfile = t.token("log", i), t.token("scene", i), logfile_name(plan)
+    t.add(
+        "log",
+        token=log_token,
+        logfile=logfile,
+        vehicle="n008",
+        date_captured=logfile[5:15],
+        location=map_name,
+    )
+    samples = [t.token("sample", i, k) for k in range(len(plan.frame_ns))]
+    t.add(
+        "scene",
+        token=scene_token,
+        log_token=log_token,
+        nbr_samples=len(samples),
+        first_sample_token=samples[0],
+        last_sample_token=samples[-1],
+        name=plan.scene_name,
+        description=f"Synthetic, route {plan.route.name}",
+    )
+    for c in channels:  # one calibration per log and sensor, as in the real tables
+        t.add(
+            "calibrated_sensor",
+            token=t.token("calibrated_sensor", i, c.name),
+            sensor_token=t.token("sensor", c.name),
+            translation=c.translation,
+            rotation=c.rotation,
+            camera_intrinsic=c.intrinsic,
+        )
+    ego = plan.ego_at(plan.frame_ns)
+    rotations = yaw_quaternion(ego[:, 2])
+    for k, ns in enumerate(plan.frame_ns):
+        us = int(ns) // 1000
+        t.add("sample", token=samples[k], timestamp=us, **_chain(samples, k), scene_token=scene_token)
+        for c in channels:
+            data = [t.token("sample_data", i, c.name, j) for j in range(len(samples))]
+            pose = t.token("ego_pose", i, c.name, k)
+            t.add(
+                "ego_pose",
+                token=pose,
+                timestamp=us,
+                rotation=rotations[k].tolist(),
+                translation=[float(ego[k, 0]), float(ego[k, 1]), 0.0],
+            )
+            t.add(
+                "sample_data",
+                token=data[k],
+                sample_token=samples[k],
+                ego_pose_token=pose,
+                calibrated_sensor_token=t.token("calibrated_sensor", i, c.name),
+                timestamp=us,
+                fileformat="pcd" if c.modality == "lidar" else "jpg",
+                is_key_frame=True,
+                height=c.height,
+                width=c.width,
+                filename=sample_filename(plan, c, int(ns)),
+                **_chain(data, k),
+            )
+
+
+def _add_annotations(t: _Tables, world: World, plan: LogPlan) -> None:
+    """One instance per car seen in the scene, its annotations chained in time through prev / next."""
+    samples = [t.token("sample", plan.index, k) for k in range(len(plan.frame_ns))]
+    seen: dict[str, list[tuple[int, Cuboid]]] = {}
+    for k, cuboids in enumerate(frame_cuboids(world, plan)):
+        for c in cuboids:
+            seen.setdefault(c.track, []).append((k, c))
+    for track, sightings in seen.items():
+        instance = t.token("instance", plan.index, track)
+        anns = [t.token("sample_annotation", plan.index, track, k) for k, _ in sightings]
+        t.add(
+            "instance",
+            token=instance,
+            category_token=t.token("category", "vehicle.car"),
+            nbr_annotations=len(anns),
+            first_annotation_token=anns[0],
+            last_annotation_token=anns[-1],
+        )
+        for j, (k, c) in enumerate(sightings):
+            attribute = t.token("attribute", "vehicle.moving" if c.moving else "vehicle.parked")
+            t.add(
+                "sample_annotation",
+                token=anns[j],
+                sample_token=samples[k],
+                instance_token=instance,
+                visibility_token="4",
+                attribute_tokens=[attribute],
+                translation=[c.x, c.y, c.height / 2],
+                size=[c.width, c.length, c.height],
+                rotation=yaw_quaternion(c.heading).tolist(),
+                **_chain(anns, j),
+                num_lidar_pts=int(3000 / (1 + c.distance)),
+                num_radar_pts=0,
+            )

@@ -1,0 +1,295 @@
+"""`cli synth`: both formats load through the real devkits and describe the same world."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.synth import synth
+from pipeline.synth.logs import MINI_TRAIN, MINI_VAL, plan_logs
+from pipeline.synth.world import AV2_CITY, NUSCENES_MAP, build_world
+
+SEED = 3
+CROP_X, CROP_Y = 15.0, 30.0  # the default 30 x 60 m range around the BEV origin
+
+
+@pytest.fixture(scope="module")
+def world():
+    return build_world(SEED)
+
+
+@pytest.fixture(scope="module")
+def out(tmp_path_factory):
+    root = tmp_path_factory.mktemp("synth")
+    summary = synth(root, seed=SEED)
+    assert summary["complete"]
+    return root
+
+
+@pytest.fixture(scope="module")
+def av2_logs(out):
+    return sorted((out / "av2" / "sensor").glob("*/*"))
+
+
+@pytest.fixture(scope="module")
+def nusc(out):
+    from nuscenes import NuScenes
+
+    return NuScenes(version="v1.0-mini", dataroot=str(out / "nuscenes"), verbose=False)
+
+
+@pytest.fixture(scope="module")
+def nusc_map(out):
+    from nuscenes.map_expansion.map_api import NuScenesMap
+
+    return NuScenesMap(dataroot=str(out / "nuscenes"), map_name=NUSCENES_MAP)
+
+
+def distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Distance from each point (n, 2) to the polyline (m, 2)."""
+    a, ab = line[:-1], np.diff(line, axis=0)
+    t = np.clip(((points[:, None] - a[None]) * ab[None]).sum(-1) / (ab**2).sum(-1)[None], 0.0, 1.0)
+    return np.linalg.norm(points[:, None] - (a[None] + t[..., None] * ab[None]), axis=-1).min(axis=1)
+
+
+def to_bev(xy: np.ndarray, x: float, y: float, heading: float) -> np.ndarray:
+    """World points into the BEV frame of an ego pose: x right, y forward."""
+    d = xy - np.array([x, y])
+    forward = d @ np.array([math.cos(heading), math.sin(heading)])
+    left = d @ np.array([-math.sin(heading), math.cos(heading)])
+    return np.column_stack([-left, forward])
+
+
+def in_crop(bev: np.ndarray) -> np.ndarray:
+    return (np.abs(bev[:, 0]) <= CROP_X) & (np.abs(bev[:, 1]) <= CROP_Y)
+
+
+def yaw_of(rotation: np.ndarray) -> float:
+    return math.atan2(rotation[1, 0], rotation[0, 0])
+
+
+# --- the world -------------------------------------------------------------------------------------
+
+
+def test_lanes_join_end_to_start_and_stay_on_the_map(world):
+    for lane in world.lanes.values():
+        assert 5.0 - 1e-6 <= lane.path.length <= 30.0, lane.name
+        for nxt in lane.successors:
+            a, b = lane.path.end, world.lanes[nxt].path.start
+            assert math.hypot(a.x - b.x, a.y - b.y) < 1e-6
+            assert abs(math.remainder(a.heading - b.heading, 2 * math.pi)) < 1e-6, (
+                lane.name,
+                world.lanes[nxt].name,
+            )
+            assert lane.id in world.lanes[nxt].predecessors
+        xy = np.concatenate([lane.boundary(s).points()[:, :2] for s in ("left", "right")])
+        assert (xy > 0).all() and (xy < np.array(world.canvas)).all()
+
+
+def test_landmarks(world):
+    lm, lanes = world.landmarks, world.lanes
+    assert all(lm.intersection_connectors[kind] for kind in ("left", "straight", "right"))
+    assert all(lm.t_junction_connectors[kind] for kind in ("left", "straight", "right"))
+    # the ring is a cycle, entered and left by every arm, and fits the crop from roundabout_view
+    ring = lm.ring_lanes
+    for a, b in zip(ring, ring[1:] + ring[:1], strict=True):
+        assert b in lanes[a].successors
+    assert all(any(e in lanes[r].successors for r in ring) for e in lm.roundabout_exits)
+    assert all(any(r in lanes[e].successors for r in ring) for e in lm.roundabout_entries)
+    view = lm.roundabout_view
+    for lane in ring:
+        centre = np.hypot(*(lanes[lane].centerline()[:, :2] - np.array(lm.roundabout_centre)).T)
+        assert np.allclose(centre, lm.roundabout_radius)
+        assert in_crop(to_bev(lanes[lane].centerline()[:, :2], view.x, view.y, view.heading)).all()
+    # fork and merge
+    assert lanes[lm.fork_lane].successors == lm.fork_branches and len(lm.fork_branches) == 2
+    assert lanes[lm.merge_lane].predecessors == lm.merge_sources and len(lm.merge_sources) == 2
+    assert lm.ramp_lanes[0] in lm.fork_branches and lm.ramp_lanes[-1] in lm.merge_sources
+    # one lane segment leaves the lateral range and comes back
+    view = lm.reentering_view
+    inside = in_crop(to_bev(lanes[lm.reentering_lane].centerline()[:, :2], view.x, view.y, view.heading))
+    assert inside[0] and inside[-1] and not inside.all()
+    assert all(lanes[i].path.pieces[0].curvature != 0 for i in lm.curved_road_lanes)
+
+
+def test_same_seed_same_world_other_seed_other_ids():
+    a, b, c = build_world(1), build_world(1), build_world(2)
+    assert list(a.lanes) == list(b.lanes) and a.landmarks == b.landmarks
+    assert list(a.lanes) != list(c.lanes)
+    assert [len(x.successors) for x in a.lanes.values()] == [len(x.successors) for x in c.lanes.values()]
+
+
+# --- AV2 -------------------------------------------------------------------------------------------
+
+
+def test_av2_logs_load_through_the_av2_api(av2_logs, world):
+    from av2.map.map_api import ArgoverseStaticMap
+    from av2.structures.cuboid import CuboidList
+    from av2.utils.io import read_city_SE3_ego
+
+    assert sorted(p.parent.name for p in av2_logs) == ["train", "train", "train", "val"]
+    crossings = 0
+    for log_dir in av2_logs:
+        (map_file,) = (log_dir / "map").glob("log_map_archive_*.json")
+        assert map_file.name.split("____")[1].split("_")[0] == AV2_CITY
+        static_map = ArgoverseStaticMap.from_map_dir(log_dir / "map", build_raster=False)
+        assert static_map.log_id == log_dir.name and len(static_map.vector_lane_segments) > 40
+        for lane_id, segment in static_map.vector_lane_segments.items():
+            lane = world.lanes[lane_id]
+            centerline = static_map.get_lane_segment_centerline(lane_id)
+            assert centerline.shape == (10, 3)
+            assert distance_to_polyline(centerline[:, :2], lane.centerline(0.1)[:, :2]).max() < 0.02, (
+                lane.name
+            )
+            assert segment.successors == lane.successors and segment.is_intersection == lane.is_intersection
+            assert (
+                segment.left_neighbor_id == lane.left_neighbor
+                and segment.right_neighbor_id == lane.right_neighbor
+            )
+        poses = read_city_SE3_ego(log_dir)
+        frames = sorted({c.timestamp_ns for c in CuboidList.from_feather(log_dir / "annotations.feather")})
+        assert len(frames) == 20 and np.all(np.diff(frames) == 100_000_000)
+        assert set(frames) <= set(poses) and len(poses) > 5 * len(frames)  # poses at a higher rate
+        crossings += len(static_map.get_scenario_ped_crossings())
+    assert crossings  # the logs through the 4-way intersection see its crossings
+
+
+def test_av2_local_maps_cover_the_crop_of_every_frame(av2_logs, world):
+    """Every world lane that reaches into a frame's 30 x 60 m crop is in that log's local map."""
+    from av2.map.map_api import ArgoverseStaticMap
+    from av2.utils.io import read_city_SE3_ego
+
+    for log_dir in av2_logs:
+        ids = set(ArgoverseStaticMap.from_map_dir(log_dir / "map").vector_lane_segments)
+        poses = read_city_SE3_ego(log_dir)
+        for ns in list(poses)[::25]:
+            pose = poses[ns]
+            x, y, heading = pose.translation[0], pose.translation[1], yaw_of(pose.rotation)
+            seen = {
+                i
+                for i, lane in world.lanes.items()
+                if in_crop(to_bev(lane.centerline(1.0)[:, :2], x, y, heading)).any()
+            }
+            assert seen and seen <= ids
+
+
+# --- nuScenes --------------------------------------------------------------------------------------
+
+
+def test_nuscenes_tables_load_with_official_split_names(nusc):
+    from nuscenes.utils.splits import create_splits_scenes
+
+    splits = create_splits_scenes()
+    assert MINI_TRAIN == splits["mini_train"] and MINI_VAL == splits["mini_val"]
+    names = [s["name"] for s in nusc.scene]
+    assert names == splits["mini_train"][:3] + splits["mini_val"][:1]
+    for scene in nusc.scene:
+        assert nusc.get("log", scene["log_token"])["location"] == NUSCENES_MAP
+        sample = nusc.get("sample", scene["first_sample_token"])
+        lidar = nusc.get("sample_data", sample["data"]["LIDAR_TOP"])
+        calib = nusc.get("calibrated_sensor", lidar["calibrated_sensor_token"])
+        assert calib["translation"] == [0.943, 0.0, 1.84]
+        assert np.allclose(calib["rotation"], [math.cos(math.pi / 4), 0, 0, -math.sin(math.pi / 4)])
+        assert lidar["is_key_frame"] and sample["anns"]
+    prior = nusc.map[0]["mask"]  # the semantic prior: every ego pose is on the drivable area
+    assert all(
+        prior.is_on_mask(*nusc.get("ego_pose", sd["ego_pose_token"])["translation"][:2])
+        for sd in nusc.sample_data
+    )
+
+
+def test_nuscenes_map_matches_the_world(nusc_map, world):
+    lanes = {r["token"] for r in nusc_map.lane}
+    connectors = {r["token"] for r in nusc_map.lane_connector}
+    assert len(lanes) + len(connectors) == len(world.lanes)
+    tokens = [world.token_of(i) for i in world.lanes]
+    discretized = nusc_map.discretize_lanes(tokens, 0.1)
+    for lane, tok in zip(world.lanes.values(), tokens, strict=True):
+        assert (tok in connectors) == lane.is_intersection
+        poses = np.array(discretized[tok])
+        dense = lane.centerline(0.05)[:, :2]
+        assert distance_to_polyline(poses[:, :2], dense).max() < 0.005, lane.name
+        assert np.abs(poses[[0, -1], :2] - dense[[0, -1]]).max() < 1e-6
+        assert nusc_map.get_outgoing_lane_ids(tok) == [world.token_of(i) for i in lane.successors]
+        assert nusc_map.get_incoming_lane_ids(tok) == [world.token_of(i) for i in lane.predecessors]
+        nusc_map.extract_polygon(
+            nusc_map.get("lane_connector" if lane.is_intersection else "lane", tok)["polygon_token"]
+        )
+    lm = world.landmarks
+    assert nusc_map.get_closest_lane(*lm.roundabout_centre, radius=12) in {
+        world.token_of(i) for i in lm.ring_lanes
+    }
+
+
+# --- both ------------------------------------------------------------------------------------------
+
+
+def test_the_formats_share_frames_and_poses(nusc, av2_logs):
+    from av2.utils.io import read_city_SE3_ego
+
+    av2 = {p.name: (p, read_city_SE3_ego(p)) for p in av2_logs}
+    summary = json.loads((av2_logs[0].parents[3] / "synth.json").read_text())
+    assert summary["complete"]
+    for log, scene in zip(summary["logs"], nusc.scene, strict=True):
+        assert log["scene"] == scene["name"]
+        log_dir, poses = av2[log["log_id"]]
+        token = scene["first_sample_token"]
+        while token:
+            sample = nusc.get("sample", token)
+            lidar = nusc.get("sample_data", sample["data"]["LIDAR_TOP"])
+            ego = nusc.get("ego_pose", lidar["ego_pose_token"])
+            pose = poses[sample["timestamp"] * 1000]  # the AV2 pose at exactly the sample's time
+            assert np.allclose(ego["translation"], pose.translation, atol=1e-9)
+            assert ego["rotation"][1] == ego["rotation"][2] == 0.0  # a yaw: the world is flat
+            assert (
+                abs(
+                    math.remainder(
+                        2 * math.atan2(ego["rotation"][3], ego["rotation"][0]) - yaw_of(pose.rotation),
+                        2 * math.pi,
+                    )
+                )
+                < 1e-9
+            )
+            token = sample["next"]
+
+
+def test_frames_see_the_hard_cases(world):
+    """The default logs drive past the roundabout (whole ring in view), the fork and the re-entering lane."""
+    lm, lanes = world.landmarks, world.lanes
+    plans = {p.route.name: p for p in plan_logs(world, 4, 20, SEED)}
+    assert plans["t_junction_and_s_bend"].split == "val"
+
+    def frames(route: str, points: np.ndarray) -> list[np.ndarray]:
+        """Per frame of the route's log: which points lie in the crop."""
+        plan = plans[route]
+        return [in_crop(to_bev(points, *pose)) for pose in plan.ego_at(plan.frame_ns)]
+
+    ring = np.concatenate([lanes[i].centerline()[:, :2] for i in lm.ring_lanes])
+    assert sum(inside.all() for inside in frames("roundabout", ring)) >= 3
+    bend = frames("t_junction_and_s_bend", lanes[lm.reentering_lane].centerline()[:, :2])
+    assert sum(inside[0] and inside[-1] and not inside.all() for inside in bend) >= 3
+    fork = lanes[lm.fork_lane].path.end.xy[None]
+    assert sum(inside.all() for inside in frames("fork_and_merge", fork)) >= 3
+
+
+def test_same_seed_same_bytes(tmp_path, out):
+    again = tmp_path / "again"
+    synth(again, seed=SEED)
+    files = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
+    for name in files:
+        assert (out / name).read_bytes() == (again / name).read_bytes(), name
+
+
+def test_rewrites_its_own_output_and_refuses_foreign_folders(tmp_path):
+    synth(tmp_path / "a", logs=2, frames_per_log=3, seed=1)
+    synth(tmp_path / "a", logs=1, frames_per_log=3, seed=2)  # replaces, leaving no stale log behind
+    assert len(list((tmp_path / "a" / "av2" / "sensor").glob("*/*"))) == 1
+    (tmp_path / "b" / "nuscenes").mkdir(parents=True)
+    with pytest.raises(FileExistsError):
+        synth(tmp_path / "b")
+    with pytest.raises(ValueError):
+        synth(tmp_path / "c", logs=11)

@@ -1,0 +1,697 @@
+"""TOPO, Junction TOPO and mIoU of a predicted lane graph against the ground truth.
+
+docs/METRICS.md is the definition; this module implements it step by step:
+densify -> candidate pairs -> matching P -> for each pair: Reach sets and their matching -> sums.
+
+The per-pair work (two shortest-path searches and one matching for each of ~3,000 pairs per frame)
+is the hot path, so it runs in numba kernels over flat arrays. tests/test_metrics.py keeps a plain
+networkx reading of the definition and checks that both agree exactly, pair by pair.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numba
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import maximum_bipartite_matching
+
+from pipeline.geometry import Range
+from pipeline.lane_graph import LaneGraph
+
+# Float noise below this many metres never decides a threshold: "d < 0.45" is read d < 0.45 - EPS, so
+# that a prediction shifted by exactly 0.45 m or a reach of exactly 50 steps of 0.15 m has one answer.
+EPS = 1e-9
+
+
+@dataclass(frozen=True)
+class MetricParams:
+    """Every threshold of the metric, recorded in each result file."""
+
+    step: float = 0.15  # densification: no edge longer than this
+    match_radius: float = 0.45  # vertices closer than this may be paired
+    reach_radius: float = 7.5  # Reach(v): path distance from v below this
+    matching: str = "greedy"  # "greedy" (LaneExtraction lineage) or "optimal" (maximum cardinality)
+    bev_range: str = "30x60"  # mIoU grid: the perception range, WIDTHxLENGTH metres
+    miou_resolution: float = 0.15  # mIoU grid cell size
+    miou_line_width: float = 0.75  # both graphs are drawn this wide for mIoU
+
+    def __post_init__(self) -> None:
+        if self.matching not in ("greedy", "optimal"):
+            raise ValueError(f"matching must be 'greedy' or 'optimal', not {self.matching!r}")
+        for name in ("step", "match_radius", "reach_radius", "miou_resolution", "miou_line_width"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, not {getattr(self, name)}")
+        Range.parse(self.bev_range)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Step 1: densify
+
+
+def split_counts(length: np.ndarray, step: float) -> np.ndarray:
+    """k = max(1, ceil(L / step)) parts per segment (one at most EPS over a multiple is not split)."""
+    return np.maximum(1, np.ceil(length / step - EPS)).astype(np.int64)
+
+
+def split_points(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """The k - 1 inner points a + (b - a) * (i / k) of each segment a -> b, segment after segment.
+
+    Path2Graph uses this same function, so that its chain points and the densified ground truth are
+    the same floats wherever they share a segment.
+    """
+    seg = np.repeat(np.arange(len(k)), k - 1)
+    i = np.arange(len(seg)) - np.repeat(np.cumsum(k - 1) - (k - 1), k - 1) + 1
+    return a[seg] + (b[seg] - a[seg]) * (i / k[seg])[:, None]
+
+
+def unique_edges(graph: LaneGraph, directed: bool) -> np.ndarray:
+    """(E, 2) int64 edges without self-loops or repeats, sorted by (src, dst).
+
+    Undirected: u -> v and v -> u are one edge, kept in the orientation that comes first in that
+    order, so that it densifies into the same points as in directed mode.
+    """
+    n = len(graph.x)
+    edges = np.stack([np.asarray(graph.src, np.int64), np.asarray(graph.dst, np.int64)], axis=1)
+    key = np.unique(edges[:, 0] * n + edges[:, 1])
+    edges = np.stack([key // max(n, 1), key % max(n, 1)], axis=1)
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    if not directed and len(edges):
+        _, first = np.unique(edges.min(axis=1) * n + edges.max(axis=1), return_index=True)
+        edges = edges[np.sort(first)]
+    return edges
+
+
+@dataclass
+class Dense:
+    """A densified graph in one mode, as flat arrays for the kernels."""
+
+    xy: np.ndarray  # (n, 2) float64: the original vertices first, then each edge's inner points
+    indptr: np.ndarray  # (n + 1,) CSR of the edges that Reach follows (successors, or both ways)
+    nbr: np.ndarray
+    weight: np.ndarray
+    junction: np.ndarray  # (n,) bool
+
+    @property
+    def n(self) -> int:
+        return len(self.xy)
+
+
+def _chains(xy: np.ndarray, edges: np.ndarray, step: float):
+    """Inner points and sub-edges (src, dst, length) of the edges split into equal parts."""
+    src, dst = edges[:, 0], edges[:, 1]
+    d = xy[dst] - xy[src]
+    length = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
+    k = split_counts(length, step)
+    inner = split_points(xy[src], xy[dst], k)
+    # sub-edge j of edge e runs from its j-th to its (j+1)-th chain point (src, inner..., dst)
+    first_inner = len(xy) + np.cumsum(k - 1) - (k - 1)
+    e = np.repeat(np.arange(len(k)), k)
+    j = np.arange(len(e)) - np.repeat(np.cumsum(k) - k, k)
+    sub_src = np.where(j == 0, src[e], first_inner[e] + j - 1)
+    sub_dst = np.where(j == k[e] - 1, dst[e], first_inner[e] + j)
+    return inner, sub_src, sub_dst, (length / k)[e]
+
+
+def _dense(xy, inner, sub_src, sub_dst, sub_w, junction, directed: bool) -> Dense:
+    if not directed:
+        sub_src, sub_dst = np.concatenate([sub_src, sub_dst]), np.concatenate([sub_dst, sub_src])
+        sub_w = np.concatenate([sub_w, sub_w])
+    n = len(xy) + len(inner)
+    order = np.argsort(sub_src, kind="stable")
+    return Dense(
+        xy=np.concatenate([xy, inner]),
+        indptr=np.concatenate([[0], np.cumsum(np.bincount(sub_src, minlength=n))]).astype(np.int64),
+        nbr=sub_dst[order].astype(np.int64),
+        weight=sub_w[order],
+        junction=np.concatenate([junction, np.zeros(len(inner), bool)]),
+    )
+
+
+def densify(graph: LaneGraph, step: float) -> dict[str, Dense]:
+    """{"directed": ..., "undirected": ...}. Junctions: in- or out-degree >= 2 (directed), >= 3
+    distinct neighbours (undirected); only original vertices can be junctions."""
+    xy = np.stack([np.asarray(graph.x, np.float64), np.asarray(graph.y, np.float64)], axis=1)
+    n = len(xy)
+    directed, undirected = unique_edges(graph, True), unique_edges(graph, False)
+    chains = _chains(xy, directed, step)
+    in_degree, out_degree = np.bincount(directed[:, 1], minlength=n), np.bincount(directed[:, 0], minlength=n)
+    junction = (in_degree >= 2) | (out_degree >= 2)
+    out = {"directed": _dense(xy, *chains, junction, directed=True)}
+    if len(undirected) < len(directed):  # u -> v and v -> u: the undirected graph densifies fewer edges
+        chains = _chains(xy, undirected, step)
+    junction = np.bincount(undirected.ravel(), minlength=n) >= 3
+    out["undirected"] = _dense(xy, *chains, junction, directed=False)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# Step 2: candidate pairs and the matching M(V_pred, V_gt)
+
+
+@dataclass
+class Candidates:
+    """Pairs (a, b) closer than the match radius. Rank r is the r-th pair in matching order,
+    ascending (distance, a, b); a_ptr/a_rank list each a's pairs by rank (CSR), b_ptr/b_rank each b's."""
+
+    a: np.ndarray  # (C,) int64 vertex of A, by rank
+    b: np.ndarray  # (C,) int64 vertex of B, by rank
+    dist: np.ndarray  # (C,) float64, by rank
+    a_ptr: np.ndarray  # (n_a + 1,)
+    a_rank: np.ndarray  # (C,)
+    b_ptr: np.ndarray  # (n_b + 1,)
+    b_rank: np.ndarray  # (C,)
+
+
+@numba.njit(cache=True)
+def _near_pairs(a_xy, b_xy, radius, eps):
+    """(count per a, b, distance) of the pairs closer than radius - eps, grouped by a, b ascending.
+
+    B is bucketed in square cells of side >= radius, so each a only looks at the 3 x 3 cells around
+    its own (cKDTree does the same search several times slower at this size, mostly in building its
+    trees and its result lists)."""
+    extent = max(np.ptp(b_xy[:, 0]), np.ptp(b_xy[:, 1]))
+    cell = max(radius, extent / 1024.0)  # at most ~1024 x 1024 cells, whatever the coordinates
+    bx = np.floor(b_xy[:, 0] / cell).astype(np.int64)
+    by = np.floor(b_xy[:, 1] / cell).astype(np.int64)
+    x0, y0 = bx.min(), by.min()
+    nx, ny = bx.max() - x0 + 1, by.max() - y0 + 1
+    cell_of_b = (bx - x0) * ny + (by - y0)
+    order = np.argsort(cell_of_b, kind="mergesort")
+    start = np.zeros(nx * ny + 1, np.int64)
+    start[1:] = np.cumsum(np.bincount(cell_of_b, minlength=nx * ny))
+
+    limit = radius - eps
+    count = np.zeros(len(a_xy), np.int64)
+    out_b, out_d = np.empty(0, np.int64), np.empty(0)
+    for fill in range(2):  # count, then fill
+        at = 0
+        for i in range(len(a_xy)):
+            ax, ay = a_xy[i, 0], a_xy[i, 1]
+            cx, cy = np.int64(np.floor(ax / cell)) - x0, np.int64(np.floor(ay / cell)) - y0
+            row_start = at
+            for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+                for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
+                    for s in range(start[gx * ny + gy], start[gx * ny + gy + 1]):
+                        j = order[s]
+                        dx, dy = ax - b_xy[j, 0], ay - b_xy[j, 1]
+                        d = np.sqrt(dx * dx + dy * dy)
+                        if d < limit:
+                            if fill:  # insertion sort by j: a row holds a handful of pairs
+                                k = at
+                                while k > row_start and out_b[k - 1] > j:
+                                    out_b[k], out_d[k] = out_b[k - 1], out_d[k - 1]
+                                    k -= 1
+                                out_b[k], out_d[k] = j, d
+                            else:
+                                count[i] += 1
+                            at += 1
+        if not fill:
+            out_b, out_d = np.empty(at, np.int64), np.empty(at)
+    return count, out_b, out_d
+
+
+@numba.njit(cache=True)
+def _ties_by_index(order, dist):
+    """Sort each run of equal distances of an (unstable) argsort by pair index, i.e. by (a, b)."""
+    s = 0
+    while s < len(order):
+        t = s + 1
+        while t < len(order) and dist[order[t]] == dist[order[s]]:
+            t += 1
+        if t - s > 1:
+            order[s:t] = np.sort(order[s:t])
+        s = t
+    return order
+
+
+@numba.njit(cache=True)
+def _rows(keys, n):
+    """CSR of the ranks 0..len(keys)-1 grouped by key, ascending within each row."""
+    ptr = np.zeros(n + 1, np.int64)
+    for key in keys:
+        ptr[key + 1] += 1
+    ptr = np.cumsum(ptr)
+    fill = ptr[:-1].copy()
+    ranks = np.empty(len(keys), np.int64)
+    for r in range(len(keys)):
+        ranks[fill[keys[r]]] = r
+        fill[keys[r]] += 1
+    return ptr, ranks
+
+
+def candidate_pairs(a_xy: np.ndarray, b_xy: np.ndarray, radius: float) -> Candidates:
+    if len(a_xy) and len(b_xy):
+        count, pair_b, dist = _near_pairs(a_xy, b_xy, radius, EPS)
+    else:
+        count, pair_b, dist = np.zeros(len(a_xy), np.int64), np.zeros(0, np.int64), np.zeros(0)
+    pair_a = np.repeat(np.arange(len(a_xy)), count)
+    # numpy's unstable sort is several times faster than a stable one; ties are rare and fixed after
+    order = _ties_by_index(np.argsort(dist), dist)
+    a, b = pair_a[order], pair_b[order]
+    return Candidates(a, b, dist[order], *_rows(a, len(a_xy)), *_rows(b, len(b_xy)))
+
+
+@numba.njit(cache=True)
+def _greedy(cand_a, cand_b, n_a, n_b):
+    """Take the pairs in rank order, keeping one when neither end is taken yet.
+    Returns each vertex's partner (-1: none) and the rank of its pair."""
+    partner_a, partner_b = np.full(n_a, -1, np.int64), np.full(n_b, -1, np.int64)
+    rank_a, rank_b = np.full(n_a, len(cand_a), np.int64), np.full(n_b, len(cand_a), np.int64)
+    for r in range(len(cand_a)):
+        a, b = cand_a[r], cand_b[r]
+        if partner_a[a] < 0 and partner_b[b] < 0:
+            partner_a[a], partner_b[b] = b, a
+            rank_a[a], rank_b[b] = r, r
+    return partner_a, partner_b, rank_a, rank_b
+
+
+@dataclass
+class Matching:
+    """M(A, B) over all vertices: partner_a[a] = b (-1: unmatched), rank_a[a] the rank of that pair."""
+
+    partner_a: np.ndarray
+    partner_b: np.ndarray
+    rank_a: np.ndarray
+    rank_b: np.ndarray
+
+    @property
+    def pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        a = np.flatnonzero(self.partner_a >= 0)
+        return a, self.partner_a[a]
+
+
+def optimal_partners(cand_a: np.ndarray, cand_b: np.ndarray, n_a: int, n_b: int) -> np.ndarray:
+    """Partner of each a (-1: none) in a maximum-cardinality matching (Hopcroft-Karp)."""
+    graph = csr_matrix((np.ones(len(cand_a)), (cand_a, cand_b)), shape=(n_a, n_b))
+    return np.asarray(maximum_bipartite_matching(graph, perm_type="column"), np.int64)
+
+
+def match(cand: Candidates, n_a: int, n_b: int, matching: str) -> Matching:
+    if matching == "greedy":
+        return Matching(*_greedy(cand.a, cand.b, n_a, n_b))
+    partner_a = optimal_partners(cand.a, cand.b, n_a, n_b)
+    partner_b = np.full(n_b, -1, np.int64)
+    paired = np.flatnonzero(partner_a >= 0)
+    partner_b[partner_a[paired]] = paired
+    none = np.full(max(n_a, n_b), len(cand.a), np.int64)  # ranks only serve the greedy kernel
+    return Matching(partner_a, partner_b, none[:n_a], none[:n_b])
+
+
+# ---------------------------------------------------------------------------------------------------
+# Steps 3-4: Reach, and the counts of each pair (the hot path)
+
+
+@numba.njit(cache=True)
+def _reach(indptr, nbr, weight, source, limit, dist, stamp, queued, queue, sid, out):
+    """Reach(source): shortest distances pruned at limit, by label correcting with a FIFO queue.
+
+    Writes the vertices to out (returns how many) and marks them stamp == sid. dist, stamp, queued
+    and queue are work arrays reused across calls. On lane graphs (chains with a few forks) this
+    visits each vertex about once and needs no heap; the final labels are the shortest distances,
+    the very floats Dijkstra computes (the minimum over paths of the sums along them).
+    """
+    stamp[source], dist[source], out[0] = sid, 0.0, source
+    count, head, tail, size = 1, 0, 1, len(queue)
+    queue[0], queued[source] = source, sid
+    while head != tail:
+        u = queue[head]
+        head = (head + 1) % size
+        queued[u] = 0
+        for e in range(indptr[u], indptr[u + 1]):
+            v, dv = nbr[e], dist[u] + weight[e]
+            if dv >= limit or (stamp[v] == sid and dv >= dist[v]):
+                continue
+            if stamp[v] != sid:
+                stamp[v] = sid
+                out[count] = v
+                count += 1
+            dist[v] = dv
+            if queued[v] != sid:
+                queued[v] = sid
+                queue[tail] = v
+                tail = (tail + 1) % size
+    return count
+
+
+@numba.njit(cache=True)
+def _heap_push(keys, vals, size, key, val):
+    i = size
+    while i > 0 and keys[(i - 1) // 2] > key:
+        keys[i], vals[i] = keys[(i - 1) // 2], vals[(i - 1) // 2]
+        i = (i - 1) // 2
+    keys[i], vals[i] = key, val
+    return size + 1
+
+
+@numba.njit(cache=True)
+def _heap_pop(keys, vals, size):
+    top_key, top_val = keys[0], vals[0]
+    size -= 1
+    key, val = keys[size], vals[size]
+    i = 0
+    while 2 * i + 1 < size:
+        child = 2 * i + 1
+        if child + 1 < size and keys[child + 1] < keys[child]:
+            child += 1
+        if keys[child] >= key:
+            break
+        keys[i], vals[i] = keys[child], vals[child]
+        i = child
+    keys[i], vals[i] = key, val
+    return top_key, top_val, size
+
+
+@numba.njit(cache=True)
+def _next_pair(ptr, ranks, other_end, other_stamp, sid, v, after):
+    """The first pair of v ranked after `after` whose other end is in the other Reach set, or -1."""
+    for i in range(ptr[v], ptr[v + 1]):
+        r = ranks[i]
+        if r > after and other_stamp[other_end[r]] == sid:
+            return r
+    return -1
+
+
+@numba.njit(cache=True)
+def _pair_counts(
+    pair_a, pair_b, a_indptr, a_nbr, a_weight, b_indptr, b_nbr, b_weight, limit,
+    cand_a, cand_b, a_ptr, a_rank, b_ptr, b_rank, partner_a, partner_b, rank_a, rank_b,
+):  # fmt: skip
+    """For each pair (p, g): |S_p|, |S_g| and |M(S_p, S_g)|, S = Reach, M the greedy matching.
+
+    The greedy matching restricted to S_p x S_g is the global one except near the border of the
+    window, so it is computed as a repair of the global one: every pair of the global matching inside
+    the window stands, until a vertex whose global partner lies outside is freed; then, in rank
+    order (an event heap), each freed vertex takes its next pair whose other end is still free at
+    that rank, which may free that end's later partner in turn. This replays the greedy exactly,
+    touching the window's vertices once and only the few pairs whose decision changes.
+    """
+    n_a, n_b, n_cand = len(a_indptr) - 1, len(b_indptr) - 1, len(cand_a)
+    size_a, size_b, matched = np.zeros(len(pair_a), np.int64), np.zeros(len(pair_a), np.int64), np.zeros(len(pair_a), np.int64)
+    dist_a, stamp_a, queued_a = np.empty(n_a), np.zeros(n_a, np.int64), np.zeros(n_a, np.int64)
+    dist_b, stamp_b, queued_b = np.empty(n_b), np.zeros(n_b, np.int64), np.zeros(n_b, np.int64)
+    reach_a, queue_a = np.empty(n_a, np.int64), np.empty(n_a + 1, np.int64)
+    reach_b, queue_b = np.empty(n_b, np.int64), np.empty(n_b + 1, np.int64)
+    # the matching inside the window: the rank at which each vertex is taken (n_cand: never), by whom
+    taken_a, with_a = np.empty(n_a, np.int64), np.empty(n_a, np.int64)
+    taken_b, with_b = np.empty(n_b, np.int64), np.empty(n_b, np.int64)
+    heap_keys = np.empty(n_cand + n_a + n_b + 1, np.int64)
+    heap_vals = np.empty(n_cand + n_a + n_b + 1, np.int64)  # 2 * vertex + (0: of A, 1: of B)
+    for k in range(len(pair_a)):
+        sid = k + 1
+        count_a = _reach(
+            a_indptr, a_nbr, a_weight, pair_a[k], limit, dist_a, stamp_a, queued_a, queue_a, sid, reach_a
+        )
+        count_b = _reach(
+            b_indptr, b_nbr, b_weight, pair_b[k], limit, dist_b, stamp_b, queued_b, queue_b, sid, reach_b
+        )
+        m, heap = 0, 0
+        for i in range(count_a):
+            a = reach_a[i]
+            b = partner_a[a]
+            if b >= 0 and stamp_b[b] == sid:
+                taken_a[a], with_a[a] = rank_a[a], b
+                m += 1
+            else:
+                taken_a[a], with_a[a] = n_cand, -1
+                if b >= 0:
+                    r = _next_pair(a_ptr, a_rank, cand_b, stamp_b, sid, a, rank_a[a])
+                    if r >= 0:
+                        heap = _heap_push(heap_keys, heap_vals, heap, r, 2 * a)
+        for i in range(count_b):
+            b = reach_b[i]
+            a = partner_b[b]
+            if a >= 0 and stamp_a[a] == sid:
+                taken_b[b], with_b[b] = rank_b[b], a
+            else:
+                taken_b[b], with_b[b] = n_cand, -1
+                if a >= 0:
+                    r = _next_pair(b_ptr, b_rank, cand_a, stamp_a, sid, b, rank_b[b])
+                    if r >= 0:
+                        heap = _heap_push(heap_keys, heap_vals, heap, r, 2 * b + 1)
+        while heap:
+            r, code, heap = _heap_pop(heap_keys, heap_vals, heap)
+            a, b, of_b = cand_a[r], cand_b[r], code & 1
+            if (taken_b[b] if of_b else taken_a[a]) <= r:
+                continue  # the freed vertex was taken again meanwhile
+            if taken_a[a] > r and taken_b[b] > r:  # both free at rank r: the window keeps (a, b)
+                m += 1
+                loser_a, loser_b, lost_at = -1, -1, n_cand
+                if of_b:  # a gives up the pair it would take later
+                    loser_b, lost_at = with_a[a], taken_a[a]
+                else:
+                    loser_a, lost_at = with_b[b], taken_b[b]
+                taken_a[a], with_a[a], taken_b[b], with_b[b] = r, b, r, a
+                if loser_a >= 0:
+                    m -= 1
+                    taken_a[loser_a], with_a[loser_a] = n_cand, -1
+                    r2 = _next_pair(a_ptr, a_rank, cand_b, stamp_b, sid, loser_a, lost_at)
+                    if r2 >= 0:
+                        heap = _heap_push(heap_keys, heap_vals, heap, r2, 2 * loser_a)
+                if loser_b >= 0:
+                    m -= 1
+                    taken_b[loser_b], with_b[loser_b] = n_cand, -1
+                    r2 = _next_pair(b_ptr, b_rank, cand_a, stamp_a, sid, loser_b, lost_at)
+                    if r2 >= 0:
+                        heap = _heap_push(heap_keys, heap_vals, heap, r2, 2 * loser_b + 1)
+            else:  # the other end is taken: the freed vertex tries its next pair
+                if of_b:
+                    r2 = _next_pair(b_ptr, b_rank, cand_a, stamp_a, sid, b, r)
+                else:
+                    r2 = _next_pair(a_ptr, a_rank, cand_b, stamp_b, sid, a, r)
+                if r2 >= 0:
+                    heap = _heap_push(heap_keys, heap_vals, heap, r2, code)
+        size_a[k], size_b[k], matched[k] = count_a, count_b, m
+    return size_a, size_b, matched
+
+
+@numba.njit(cache=True)
+def _reach_set(indptr, nbr, weight, source, limit):
+    n = len(indptr) - 1
+    out, queue = np.empty(n, np.int64), np.empty(n + 1, np.int64)
+    work_dist, stamp, queued = np.empty(n), np.zeros(n, np.int64), np.zeros(n, np.int64)
+    count = _reach(indptr, nbr, weight, source, limit, work_dist, stamp, queued, queue, 1, out)
+    return np.sort(out[:count])
+
+
+def reach(graph: Dense, source: int, radius: float) -> np.ndarray:
+    """Reach(G, v): the sorted vertices closer than radius to source along the edges."""
+    return _reach_set(graph.indptr, graph.nbr, graph.weight, source, radius - EPS)
+
+
+@dataclass
+class PairCounts:
+    """Step 4 of one frame in one mode, per pair."""
+
+    pred: np.ndarray  # (P,) paired predicted vertex
+    gt: np.ndarray  # (P,) paired ground-truth vertex
+    size_pred: np.ndarray  # |S_p|
+    size_gt: np.ndarray  # |S_g|
+    matched: np.ndarray  # |M(S_p, S_g)|
+
+
+def pair_counts(pred: Dense, gt: Dense, pair_p, pair_g, cand: Candidates, m: Matching, params: MetricParams):
+    pair_p, pair_g = np.asarray(pair_p, np.int64), np.asarray(pair_g, np.int64)
+    if params.matching == "greedy":
+        sizes = _pair_counts(
+            pair_p, pair_g, pred.indptr, pred.nbr, pred.weight, gt.indptr, gt.nbr, gt.weight,
+            params.reach_radius - EPS, cand.a, cand.b, cand.a_ptr, cand.a_rank, cand.b_ptr, cand.b_rank,
+            m.partner_a, m.partner_b, m.rank_a, m.rank_b,
+        )  # fmt: skip
+    else:  # a maximum-cardinality matching for each pair: slow, an option off by default
+        sizes = tuple(np.zeros(len(pair_p), np.int64) for _ in range(3))
+        for k, (p, g) in enumerate(zip(pair_p.tolist(), pair_g.tolist())):
+            s_p, s_g = reach(pred, p, params.reach_radius), reach(gt, g, params.reach_radius)
+            inside = np.isin(cand.a, s_p) & np.isin(cand.b, s_g)
+            partner = optimal_partners(cand.a[inside], cand.b[inside], pred.n, gt.n)
+            sizes[0][k], sizes[1][k], sizes[2][k] = len(s_p), len(s_g), np.count_nonzero(partner >= 0)
+    return PairCounts(pair_p, pair_g, *sizes)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Steps 4-5: one frame's sums, and the scores over a set of frames
+
+
+def ratio(num: float, den: float) -> float:
+    return num / den if den else 0.0
+
+
+def prf(pre_sum: float, pre_den: float, rec_sum: float, rec_den: float) -> dict:
+    p, r = ratio(pre_sum, pre_den), ratio(rec_sum, rec_den)
+    return {"precision": p, "recall": r, "f1": ratio(2 * p * r, p + r)}
+
+
+@dataclass
+class TopoCounts:
+    """The sums of one mode (directed or undirected) over the frames added so far."""
+
+    pre: list[float] = field(default_factory=list)  # per frame: sum of m / |S_p| over the pairs
+    rec: list[float] = field(default_factory=list)
+    n_pred: int = 0
+    n_gt: int = 0
+    junction_pre: list[float] = field(default_factory=list)
+    junction_rec: list[float] = field(default_factory=list)
+    n_anchored: int = 0
+    n_junctions: int = 0
+
+    def add(self, other: TopoCounts) -> None:
+        for name, value in vars(other).items():
+            setattr(self, name, getattr(self, name) + value)
+
+    def scores(self) -> dict:
+        # math.fsum: the correctly rounded sum, so that no summation order changes a digit
+        return {
+            "topo": prf(math.fsum(self.pre), self.n_pred, math.fsum(self.rec), self.n_gt),
+            "junction_topo": prf(
+                math.fsum(self.junction_pre), self.n_anchored, math.fsum(self.junction_rec), self.n_junctions
+            ),
+        }
+
+
+def junction_anchors(gt: Dense, cand: Candidates, m: Matching) -> tuple[np.ndarray, np.ndarray]:
+    """(junction, anchor) of the anchored junctions: the paired vertex, else the nearest one."""
+    junctions = np.flatnonzero(gt.junction)
+    anchor = m.partner_b[junctions]
+    alone = np.flatnonzero((anchor < 0) & (cand.b_ptr[junctions + 1] > cand.b_ptr[junctions]))
+    # each b's pairs are in rank order, (distance, a): the first is the nearest, ties by index
+    anchor[alone] = cand.a[cand.b_rank[cand.b_ptr[junctions[alone]]]]
+    return junctions[anchor >= 0], anchor[anchor >= 0]
+
+
+def mode_counts(pred: Dense, gt: Dense, cand: Candidates, m: Matching, params: MetricParams) -> TopoCounts:
+    """TOPO and Junction TOPO sums of one frame in one mode."""
+    pair_p, pair_g = m.pairs
+    j_gt, j_pred = junction_anchors(gt, cand, m)
+    # the junctions' pairs go in the same kernel call; a paired junction's pair is then counted twice
+    all_p, all_g = np.concatenate([pair_p, j_pred]), np.concatenate([pair_g, j_gt])
+    both = pair_counts(pred, gt, all_p, all_g, cand, m, params)
+    topo, junc = slice(0, len(pair_p)), slice(len(pair_p), None)
+    return TopoCounts(
+        pre=[math.fsum(both.matched[topo] / both.size_pred[topo])],
+        rec=[math.fsum(both.matched[topo] / both.size_gt[topo])],
+        n_pred=pred.n,
+        n_gt=gt.n,
+        junction_pre=[math.fsum(both.matched[junc] / both.size_pred[junc])],
+        junction_rec=[math.fsum(both.matched[junc] / both.size_gt[junc])],
+        n_anchored=len(j_gt),
+        n_junctions=int(np.count_nonzero(gt.junction)),
+    )
+
+
+def frame_counts(pred: LaneGraph, gt: LaneGraph, params: MetricParams) -> dict[str, TopoCounts]:
+    """{"directed": ..., "undirected": ...} sums of one frame."""
+    dense_pred, dense_gt = densify(pred, params.step), densify(gt, params.step)
+    out, last = {}, None
+    for mode in ("directed", "undirected"):
+        p, g = dense_pred[mode], dense_gt[mode]
+        # both modes have the same vertices unless a graph has both u -> v and v -> u
+        if last is None or not (np.array_equal(last[0], p.xy) and np.array_equal(last[1], g.xy)):
+            cand = candidate_pairs(p.xy, g.xy, params.match_radius)
+            last = (p.xy, g.xy, cand, match(cand, p.n, g.n, params.matching))
+        out[mode] = mode_counts(p, g, last[2], last[3], params)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# Step 7: mIoU
+
+
+@numba.njit(cache=True)
+def _draw(xy, src, dst, x_min, y_max, res, rows, cols, half_width):
+    """Cells whose centre lies within half_width of a segment src -> dst (src == dst: of a point)."""
+    mask = np.zeros((rows, cols), np.bool_)
+    for e in range(len(src)):
+        ax, ay, bx, by = xy[src[e], 0], xy[src[e], 1], xy[dst[e], 0], xy[dst[e], 1]
+        dx, dy = bx - ax, by - ay
+        ll = dx * dx + dy * dy
+        # only the cells of the segment's bounding box grown by the half width can be in
+        c0 = max(0, int(math.floor((min(ax, bx) - half_width - x_min) / res)))
+        c1 = min(cols - 1, int(math.floor((max(ax, bx) + half_width - x_min) / res)))
+        r0 = max(0, int(math.floor((y_max - max(ay, by) - half_width) / res)))
+        r1 = min(rows - 1, int(math.floor((y_max - min(ay, by) + half_width) / res)))
+        for r in range(r0, r1 + 1):
+            py = y_max - (r + 0.5) * res
+            for c in range(c0, c1 + 1):
+                px = x_min + (c + 0.5) * res
+                t = 0.0 if ll == 0.0 else min(1.0, max(0.0, ((px - ax) * dx + (py - ay) * dy) / ll))
+                qx, qy = ax + t * dx - px, ay + t * dy - py
+                if qx * qx + qy * qy <= half_width * half_width:
+                    mask[r, c] = True
+    return mask
+
+
+def draw(graph: LaneGraph, params: MetricParams) -> np.ndarray:
+    """The graph on the BEV grid of docs/DATA.md, params.miou_line_width wide (cells by centre)."""
+    rng = Range.parse(params.bev_range)
+    res = params.miou_resolution
+    rows, cols = round((rng.y_max - rng.y_min) / res), round((rng.x_max - rng.x_min) / res)
+    xy = np.stack([np.asarray(graph.x, np.float64), np.asarray(graph.y, np.float64)], axis=1)
+    edges = unique_edges(graph, directed=False)
+    lonely = np.setdiff1d(np.arange(len(xy)), edges.ravel())
+    src, dst = np.concatenate([edges[:, 0], lonely]), np.concatenate([edges[:, 1], lonely])
+    return _draw(xy, src, dst, rng.x_min, rng.y_max, res, rows, cols, params.miou_line_width / 2 + EPS)
+
+
+@dataclass
+class IouCounts:
+    intersection: int = 0
+    union: int = 0
+
+    def add(self, other: IouCounts) -> None:
+        self.intersection += other.intersection
+        self.union += other.union
+
+
+def iou_counts(pred: LaneGraph, gt: LaneGraph, params: MetricParams) -> IouCounts:
+    a, b = draw(pred, params), draw(gt, params)
+    return IouCounts(int(np.count_nonzero(a & b)), int(np.count_nonzero(a | b)))
+
+
+# ---------------------------------------------------------------------------------------------------
+# A set of frames
+
+
+@dataclass
+class Totals:
+    """Everything summed over the frames scored so far; result() is the JSON body of `cli score`."""
+
+    params: MetricParams = field(default_factory=MetricParams)
+    frames: int = 0
+    directed: TopoCounts = field(default_factory=TopoCounts)
+    undirected: TopoCounts = field(default_factory=TopoCounts)
+    iou: IouCounts = field(default_factory=IouCounts)
+
+    def add_frame(self, pred: LaneGraph, gt: LaneGraph) -> None:
+        counts = frame_counts(pred, gt, self.params)
+        self.directed.add(counts["directed"])
+        self.undirected.add(counts["undirected"])
+        self.iou.add(iou_counts(pred, gt, self.params))
+        self.frames += 1
+
+    def add(self, other: Totals) -> None:
+        self.frames += other.frames
+        self.directed.add(other.directed)
+        self.undirected.add(other.undirected)
+        self.iou.add(other.iou)
+
+    def result(self) -> dict:
+        return {
+            "frames": self.frames,
+            "directed": self.directed.scores(),
+            "undirected": self.undirected.scores(),
+            "miou": ratio(self.iou.intersection, self.iou.union),
+            "params": self.params.as_dict(),
+        }
+
+
+def score_graphs(pairs, params: MetricParams | None = None) -> dict:
+    """The scores of (pred, gt) LaneGraph pairs, one per frame, over the set."""
+    totals = Totals(params or MetricParams())
+    for pred, gt in pairs:
+        totals.add_frame(pred, gt)
+    return totals.result()

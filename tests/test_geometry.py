@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pipeline.geometry import Range, clip_polylines, resample_polylines
+
+# shapely warns on the degenerate (zero-length) lines that hypothesis generates on purpose
+pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
 
 BOX = (-15.0, 15.0, -30.0, 30.0)
 coord = st.floats(-50, 50, allow_nan=False).map(lambda v: round(v, 3))

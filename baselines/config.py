@@ -95,6 +95,7 @@ class DataConfig:
     image_divisor: int = 32  # images are padded to a multiple of this (bottom / right)
     max_points: int = 120_000  # LiDAR points kept per sweep (random subset beyond)
     sensor_root: str = ""  # raw dataset root; default: the `root` in the prepared manifest.json
+    cache_samples: bool = False  # keep decoded samples in memory (small datasets, many epochs)
     num_workers: int = 4
 
 
@@ -179,7 +180,13 @@ def tiny() -> Config:
             lidar_blocks=1,
         ),
         decoder=DecoderConfig(num_paths=16, path_points=20, layers=3, heads=4, ffn_channels=128, dropout=0.0),
-        data=DataConfig(image_scale_nuscenes=0.2, image_scale_av2=0.1, max_points=20_000, num_workers=0),
+        data=DataConfig(
+            image_scale_nuscenes=0.2,
+            image_scale_av2=0.1,
+            max_points=20_000,
+            num_workers=0,
+            cache_samples=True,
+        ),
         train=TrainConfig(
             epochs=40, batch_size=4, lr=1e-3, backbone_lr_mult=1.0, warmup_iters=50, amp=False, threads=2
         ),

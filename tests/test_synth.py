@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -275,18 +276,164 @@ def test_frames_see_the_hard_cases(world):
     assert sum(inside.all() for inside in frames("fork_and_merge", fork)) >= 3
 
 
-def test_same_seed_same_bytes(tmp_path, out):
-    again = tmp_path / "again"
-    synth(again, seed=SEED)
-    files = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
+# --- sensors ---------------------------------------------------------------------------------------
+
+
+def painted_lines(world, marks=("SOLID_WHITE", "SOLID_YELLOW", "DASHED_WHITE", "DOUBLE_SOLID_YELLOW")):
+    """(n, 2) points every 10 cm along the lane boundaries that carry these marks."""
+    lines = []
+    for lane in world.lanes.values():
+        for side, mark in (("left", lane.left_mark), ("right", lane.right_mark)):
+            if mark in marks:
+                lines.append(lane.boundary(side).points(spacing=0.1)[:, :2])
+    return np.concatenate(lines)
+
+
+def on_crosswalk(world, xy: np.ndarray) -> np.ndarray:
+    inside = np.zeros(len(xy), bool)
+    for crossing in world.crosswalks:
+        origin = crossing.edge1[0]
+        across, along = crossing.edge1[1] - origin, crossing.edge2[0] - origin
+        a = (xy - origin) @ across / (across @ across)
+        b = (xy - origin) @ along / (along @ along)
+        inside |= (a > -0.1) & (a < 1.1) & (b > -0.1) & (b < 1.1)
+    return inside
+
+
+def assert_paint_is_bright_in_lidar(world, world_xyz: np.ndarray, intensity: np.ndarray) -> None:
+    """High-intensity ground returns lie on lane paint (or a crosswalk), and there are some."""
+    from scipy.spatial import cKDTree
+
+    bright = (intensity > 70) & (np.abs(world_xyz[:, 2]) < 0.1)
+    xy = world_xyz[bright, :2]
+    xy = xy[~on_crosswalk(world, xy)]
+    distance, _ = cKDTree(painted_lines(world)).query(xy)
+    assert len(xy) > 50 and np.mean(distance < 0.35) > 0.97
+
+
+def test_av2_sensors_load_through_the_av2_api(av2_logs, world):
+    from av2.geometry.camera.pinhole_camera import PinholeCamera
+    from av2.structures.sweep import Sweep
+    from av2.utils.io import read_city_SE3_ego, read_feather
+
+    from pipeline.synth.rig import AV2_CAMERAS
+
+    for log_dir in av2_logs:
+        sweeps = sorted((log_dir / "sensors" / "lidar").glob("*.feather"))
+        frames = np.unique(read_feather(log_dir / "annotations.feather")["timestamp_ns"])
+        assert [int(p.stem) for p in sweeps] == frames.tolist()  # frames are keyed by the sweeps
+        poses = read_city_SE3_ego(log_dir)
+        xyz, intensity = [], []
+        for path in sweeps:
+            sweep = Sweep.from_feather(path)
+            xyz.append(poses[sweep.timestamp_ns].transform_point_cloud(sweep.xyz))
+            intensity.append(sweep.intensity)
+        assert_paint_is_bright_in_lidar(world, np.concatenate(xyz), np.concatenate(intensity))
+        for spec in AV2_CAMERAS:
+            camera = PinholeCamera.from_feather(log_dir, spec.name)
+            images = sorted((log_dir / "sensors" / "cameras" / spec.name).glob("*.jpg"))
+            assert [int(p.stem) for p in images] == frames.tolist()
+            image = cv2_read(images[0])
+            assert image.shape == (camera.height_px, camera.width_px, 3)
+        # paint projected through the written calibration lands on bright pixels of ring_front_center
+        camera = PinholeCamera.from_feather(log_dir, "ring_front_center")
+        brightness = []
+        for path in sorted((log_dir / "sensors" / "cameras" / "ring_front_center").glob("*.jpg"))[::2]:
+            to_ego = poses[int(path.stem)].inverse()
+
+            def project(xyz: np.ndarray, to_ego=to_ego, camera=camera) -> tuple[np.ndarray, np.ndarray]:
+                uv, points_camera, _ = camera.project_ego_to_img(to_ego.transform_point_cloud(xyz))
+                return uv, points_camera[:, 2]
+
+            brightness.append(paint_contrast(world, cv2_read(path), project))
+        assert np.nanmedian(brightness) > 25, brightness
+
+
+def cv2_read(path: Path) -> np.ndarray:
+    import cv2
+
+    image = cv2.imread(str(path))
+    assert image is not None, path
+    return image
+
+
+def paint_contrast(world, image: np.ndarray, project) -> float:
+    """Median grey level on solid lane lines minus that on lane centres, on the ground 2-20 m from the
+    camera; project(world xyz) -> (uv, depth). NaN when the image shows too few of either."""
+    h, w = image.shape[:2]
+    grey = image.mean(axis=2)
+    levels = []
+    centres = np.concatenate([lane.centerline(0.1)[:, :2] for lane in world.lanes.values()])
+    for xy in (painted_lines(world, ("SOLID_WHITE", "SOLID_YELLOW")), centres):
+        uv, depth = project(np.column_stack([xy, np.zeros(len(xy))]))
+        seen = (
+            (depth > 2) & (depth < 20) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        )
+        if seen.sum() < 20:
+            return np.nan
+        levels.append(np.median(grey[uv[seen, 1].astype(int), uv[seen, 0].astype(int)]))
+    return levels[0] - levels[1]
+
+
+def test_nuscenes_sensors_load_through_the_devkit(nusc, out, world):
+    from nuscenes.utils.data_classes import LidarPointCloud
+    from pyquaternion import Quaternion
+
+    from pipeline.synth.rig import NUSCENES_CAMERAS
+
+    def to_world(record: dict) -> np.ndarray:
+        matrix = np.eye(4)
+        matrix[:3, :3], matrix[:3, 3] = Quaternion(record["rotation"]).rotation_matrix, record["translation"]
+        return matrix
+
+    xyz, intensity, contrast = [], [], []
+    for sample in nusc.sample:
+        assert sorted(sample["data"]) == sorted(["LIDAR_TOP"] + [c.name for c in NUSCENES_CAMERAS])
+        lidar = nusc.get("sample_data", sample["data"]["LIDAR_TOP"])
+        cloud = LidarPointCloud.from_file(str(out / "nuscenes" / lidar["filename"]))
+        lidar_to_world = to_world(nusc.get("ego_pose", lidar["ego_pose_token"])) @ to_world(
+            nusc.get("calibrated_sensor", lidar["calibrated_sensor_token"]))  # fmt: skip
+        xyz.append(cloud.points[:3].T @ lidar_to_world[:3, :3].T + lidar_to_world[:3, 3])
+        intensity.append(cloud.points[3])
+        camera = nusc.get("sample_data", sample["data"]["CAM_FRONT"])
+        calib = nusc.get("calibrated_sensor", camera["calibrated_sensor_token"])
+        image = cv2_read(out / "nuscenes" / camera["filename"])
+        assert image.shape == (camera["height"], camera["width"], 3) == (225, 400, 3)
+        world_to_camera = np.linalg.inv(
+            to_world(nusc.get("ego_pose", camera["ego_pose_token"])) @ to_world(calib)
+        )
+
+        def project(points: np.ndarray, m=world_to_camera, k=np.array(calib["camera_intrinsic"])) -> tuple:
+            cam = points @ m[:3, :3].T + m[:3, 3]
+            uv = cam @ k.T
+            return uv[:, :2] / np.maximum(uv[:, 2:], 1e-9), cam[:, 2]
+
+        contrast.append(paint_contrast(world, image, project))
+    assert_paint_is_bright_in_lidar(world, np.concatenate(xyz), np.concatenate(intensity))
+    assert np.nanmedian(contrast) > 25, contrast
+
+
+def test_sensors_can_be_left_out(tmp_path):
+    synth(tmp_path, logs=2, frames_per_log=3, seed=1, sensors=False)
+    assert not list((tmp_path / "av2").rglob("sensors")) and not (tmp_path / "nuscenes" / "samples").exists()
+    sample_data = json.loads((tmp_path / "nuscenes" / "v1.0-mini" / "sample_data.json").read_text())
+    assert {Path(d["filename"]).parent.name for d in sample_data} == {"LIDAR_TOP"}
+
+
+def test_same_seed_same_bytes(tmp_path):
+    first, again = tmp_path / "first", tmp_path / "again"
+    for out in (first, again):
+        synth(out, logs=2, frames_per_log=4, seed=SEED)
+    files = sorted(p.relative_to(first) for p in first.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
+    assert any(name.suffix == ".jpg" for name in files) and any(name.suffix == ".bin" for name in files)
     for name in files:
-        assert (out / name).read_bytes() == (again / name).read_bytes(), name
+        assert (first / name).read_bytes() == (again / name).read_bytes(), name
 
 
 def test_rewrites_its_own_output_and_refuses_foreign_folders(tmp_path):
-    synth(tmp_path / "a", logs=2, frames_per_log=3, seed=1)
-    synth(tmp_path / "a", logs=1, frames_per_log=3, seed=2)  # replaces, leaving no stale log behind
+    synth(tmp_path / "a", logs=2, frames_per_log=3, seed=1, sensors=False)
+    synth(tmp_path / "a", logs=1, frames_per_log=3, seed=2, sensors=False)  # no stale log is left behind
     assert len(list((tmp_path / "a" / "av2" / "sensor").glob("*/*"))) == 1
     (tmp_path / "b" / "nuscenes").mkdir(parents=True)
     with pytest.raises(FileExistsError):

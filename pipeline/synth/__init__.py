@@ -20,14 +20,16 @@ from rich.table import Table
 
 from pipeline.synth import av2_writer, nuscenes_map, nuscenes_writer
 from pipeline.synth.ids import token
-from pipeline.synth.logs import plan_logs
+from pipeline.synth.logs import LogPlan, plan_logs
+from pipeline.synth.sensors import write_sensors
 from pipeline.synth.world import NUSCENES_MAP, build_world
 
 MARKER = "synth.json"
 
 
-def synth(out: Path, logs: int = 4, frames_per_log: int = 20, seed: int = 0) -> dict:
-    """Write the dataset into out (replacing an earlier synth output there) and return a summary."""
+def synth(out: Path, logs: int = 4, frames_per_log: int = 20, seed: int = 0, sensors: bool = True) -> dict:
+    """Write the dataset into out (replacing an earlier synth output there) and return a summary;
+    sensors=False leaves out the camera images and LiDAR sweeps (and the AV2 calibration)."""
     out = Path(out)
     world = build_world(seed)
     plans = plan_logs(world, logs, frames_per_log, seed)
@@ -36,31 +38,25 @@ def synth(out: Path, logs: int = 4, frames_per_log: int = 20, seed: int = 0) -> 
         "complete": False,
         "seed": seed,
         "frames_per_log": frames_per_log,
+        "sensors": sensors,
         "av2_root": str(av2_root.relative_to(out)),
         "nuscenes_root": str(nuscenes_root.relative_to(out)),
         "nuscenes_version": nuscenes_writer.VERSION,
         "nuscenes_map": NUSCENES_MAP,
         "lanes": len(world.lanes),
-        "logs": [
-            {
-                "split": p.split,
-                "log_id": p.log_id,
-                "scene": p.scene_name,
-                "route": p.route.name,
-                "frames": len(p.frame_ns),
-            }
-            for p in plans
-        ],
+        "logs": [_log_summary(plan) for plan in plans],
     }
     _clear(out)
     (out / MARKER).write_text(json.dumps(summary, indent=1))  # says "incomplete" until the end
     prior = f"maps/{token(seed, 'semantic prior')}.png"
-    channels = [nuscenes_writer.LIDAR_TOP]
+    channels = nuscenes_writer.channels(sensors)
     with _LazyProgress(total=len(plans) + 2) as progress:
         nuscenes_map.write_map(nuscenes_root, world, NUSCENES_MAP, prior)
         progress.advance()
         for plan in plans:
-            av2_writer.write_log(av2_root, world, plan)
+            log_dir = av2_writer.write_log(av2_root, world, plan)
+            if sensors:
+                write_sensors(world, plan, log_dir, nuscenes_root)
             progress.advance()
         nuscenes_writer.write_tables(nuscenes_root, world, plans, channels, NUSCENES_MAP, prior)
         progress.advance()
@@ -70,14 +66,17 @@ def synth(out: Path, logs: int = 4, frames_per_log: int = 20, seed: int = 0) -> 
     return summary
 
 
+def _log_summary(plan: LogPlan) -> dict:
+    return {"split": plan.split, "log_id": plan.log_id, "scene": plan.scene_name, "route": plan.route.name,
+            "frames": len(plan.frame_ns)}  # fmt: skip
+
+
 def _clear(out: Path) -> None:
     """Remove an earlier synth output (its marker proves it is one); refuse to mix with anything else."""
     ours = [out / "av2", out / "nuscenes"]
     if any(p.exists() for p in ours):
         if not (out / MARKER).is_file():
-            raise FileExistsError(
-                f"{out} holds av2/ or nuscenes/ that synth did not write; choose another --out"
-            )
+            raise FileExistsError(f"{out} holds av2/ or nuscenes/ not written by synth; choose another --out")
         for p in ours:
             shutil.rmtree(p, ignore_errors=True)
     out.mkdir(parents=True, exist_ok=True)
@@ -106,9 +105,8 @@ class _LazyProgress:
 
 
 def _print_summary(out: Path, summary: dict) -> None:
-    table = Table(
-        title=f"synth: {summary['lanes']} lanes, seed {summary['seed']} -> {out}", title_justify="left"
-    )
+    title = f"synth: {summary['lanes']} lanes, seed {summary['seed']} -> {out}"
+    table = Table(title=title, title_justify="left")
     for column in ("split", "AV2 log id", "nuScenes scene", "route", "frames"):
         table.add_column(column)
     for log in summary["logs"]:

@@ -1,8 +1,10 @@
-"""Argoverse 2 sensor-dataset layout: `<root>/<split>/<log_id>/` with the vector map, ego poses and cuboids.
+"""Argoverse 2 sensor-dataset layout: `<root>/<split>/<log_id>/` with the vector map, ego poses, cuboids
+and, with sensors, the calibration, ring camera images and LiDAR sweeps.
 
 Formats follow av2==0.3.6 (`ArgoverseStaticMap.from_json`, `av2.utils.io.read_city_SE3_ego`,
-`CuboidList.from_feather`) and the real files: coordinates rounded to centimetres, one local map per
-log holding the lanes near its trajectory (so, as in real logs, some successor ids are not in it).
+`CuboidList.from_feather`, `PinholeCamera.from_feather`, `Sweep.from_feather`) and the real files:
+coordinates rounded to centimetres, one local map per log holding the lanes near its trajectory (so,
+as in real logs, some successor ids are not in it), float16 sweep coordinates.
 """
 
 from __future__ import annotations
@@ -15,13 +17,18 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.synth.ids import token
+from pipeline.synth.lidar import Sweep
 from pipeline.synth.logs import LogPlan, frame_cuboids
+from pipeline.synth.rig import AV2_CAMERAS, AV2_LIDARS
 from pipeline.synth.world import AV2_CITY, World
 
 LOCAL_MAP_RADIUS_M = 80.0  # l-infinity distance from the trajectory within which a log's map keeps lanes
 RASTER_SCALE = 10.0 / 3.0  # AV2 rasters are 30 cm per pixel
 DRIVABLE_AREA_ID0 = 100_000_000
 CROSSING_ID0 = 200_000_000
+ANNOTATION_COLUMNS = (
+    "timestamp_ns track_uuid category length_m width_m height_m qw qx qy qz tx_m ty_m tz_m num_interior_pts"
+).split()
 
 
 def write_feather(path: Path, columns: dict) -> None:
@@ -89,13 +96,12 @@ def write_map(map_dir: Path, world: World, plan: LogPlan) -> None:
             }
     tile = int(token(world.seed, "city tile", plan.index)[:8], 16) % 90_000 + 10_000
     vector_map = {"pedestrian_crossings": crossings, "lane_segments": lanes, "drivable_areas": areas}
-    (map_dir / f"log_map_archive_{plan.log_id}____{AV2_CITY}_city_{tile}.json").write_text(
-        json.dumps(vector_map)
-    )
-    corner = np.floor(
-        np.array([[p["x"], p["y"]] for a in areas.values() for p in a["area_boundary"]]).min(axis=0)
-    )
-    sim2 = {"R": [1.0, 0.0, 0.0, 1.0], "t": [float(-corner[0]), float(-corner[1])], "s": RASTER_SCALE}
+    name = f"log_map_archive_{plan.log_id}____{AV2_CITY}_city_{tile}.json"
+    (map_dir / name).write_text(json.dumps(vector_map))
+    # the raster (ground height) grid would start at the map's lower left corner, 30 cm per pixel
+    corners = [[p["x"], p["y"]] for area in areas.values() for p in area["area_boundary"]]
+    x0, y0 = np.floor(np.min(corners, axis=0))
+    sim2 = {"R": [1.0, 0.0, 0.0, 1.0], "t": [float(-x0), float(-y0)], "s": RASTER_SCALE}
     (map_dir / f"{plan.log_id}___img_Sim2_city.json").write_text(json.dumps(sim2))
 
 
@@ -111,37 +117,46 @@ def write_poses(path: Path, plan: LogPlan) -> None:
 def write_annotations(path: Path, world: World, plan: LogPlan) -> None:
     """Cuboids in the egovehicle frame (x forward, y left); the lead car puts at least one in every frame."""
     rows = []
-    for ns, ego, cuboids in zip(
-        plan.frame_ns, plan.ego_at(plan.frame_ns), frame_cuboids(world, plan), strict=True
-    ):
-        cos, sin = math.cos(ego[2]), math.sin(ego[2])
+    poses = plan.ego_at(plan.frame_ns)
+    for ns, (x, y, heading), cuboids in zip(plan.frame_ns, poses, frame_cuboids(world, plan), strict=True):
+        cos, sin = math.cos(heading), math.sin(heading)
         for c in cuboids:
-            dx, dy = c.x - ego[0], c.y - ego[1]
+            dx, dy = c.x - x, c.y - y
+            rotation = yaw_quaternion(c.heading - heading).tolist()
+            translation = [cos * dx + sin * dy, -sin * dx + cos * dy, c.height / 2]
+            size = [c.length, c.width, c.height]
+            interior_points = int(3000 / (1 + c.distance))  # fewer when far
             rows.append(
-                (
-                    int(ns),
-                    c.track,
-                    "REGULAR_VEHICLE",
-                    c.length,
-                    c.width,
-                    c.height,
-                    c.heading - ego[2],
-                    cos * dx + sin * dy,
-                    -sin * dx + cos * dy,
-                    c.height / 2,
-                    int(3000 / (1 + c.distance)),
-                )
+                [int(ns), c.track, "REGULAR_VEHICLE", *size, *rotation, *translation, interior_points]
             )
-    (ns, track, category, length, width, height, yaw, tx, ty, tz, points) = map(list, zip(*rows, strict=True))
-    q = yaw_quaternion(np.array(yaw))
-    columns = {
-        "timestamp_ns": pa.array(ns, pa.int64()),
-        "track_uuid": track,
-        "category": category,
-        "length_m": length,
-        "width_m": width,
-        "height_m": height,
-    }
-    columns |= {name: pa.array(q[:, i], pa.float64()) for i, name in enumerate(("qw", "qx", "qy", "qz"))}
-    columns |= {"tx_m": tx, "ty_m": ty, "tz_m": tz, "num_interior_pts": pa.array(points, pa.int64())}
+    columns = dict(zip(ANNOTATION_COLUMNS, map(list, zip(*rows, strict=True)), strict=True))
+    write_feather(path, columns)  # python ints and floats: int64 and double columns, as in the real files
+
+
+def write_calibration(log_dir: Path) -> None:
+    """calibration/intrinsics.feather (pinhole, no distortion) and egovehicle_SE3_sensor.feather."""
+    (log_dir / "calibration").mkdir(parents=True, exist_ok=True)
+    names = [c.name for c in AV2_CAMERAS]
+    write_feather(log_dir / "calibration" / "intrinsics.feather", {
+        "sensor_name": names,
+        "fx_px": [c.focal for c in AV2_CAMERAS], "fy_px": [c.focal for c in AV2_CAMERAS],
+        "cx_px": [c.cx for c in AV2_CAMERAS], "cy_px": [c.cy for c in AV2_CAMERAS],
+        "k1": [0.0] * len(names), "k2": [0.0] * len(names), "k3": [0.0] * len(names),
+        "height_px": pa.array([c.height for c in AV2_CAMERAS], pa.int64()),
+        "width_px": pa.array([c.width for c in AV2_CAMERAS], pa.int64()),
+    })  # fmt: skip
+    poses = [(c.name, c.quaternion, c.translation) for c in AV2_CAMERAS]
+    poses += [(name, q, t) for name, (t, q) in AV2_LIDARS.items()]
+    columns = {"sensor_name": [name for name, _, _ in poses]}
+    columns |= {k: [float(q[i]) for _, q, _ in poses] for i, k in enumerate(("qw", "qx", "qy", "qz"))}
+    columns |= {k: [float(t[i]) for _, _, t in poses] for i, k in enumerate(("tx_m", "ty_m", "tz_m"))}
+    write_feather(log_dir / "calibration" / "egovehicle_SE3_sensor.feather", columns)
+
+
+def write_sweep(path: Path, sweep: Sweep) -> None:
+    """A sweep in the egovehicle frame with the real column types (float16 coordinates)."""
+    columns = {axis: pa.array(sweep.xyz[:, i].astype(np.float16)) for i, axis in enumerate("xyz")}
+    columns["intensity"] = pa.array(sweep.intensity, pa.uint8())
+    columns["laser_number"] = pa.array(sweep.laser, pa.uint8())
+    columns["offset_ns"] = pa.array(sweep.offset_ns, pa.uint32())
     write_feather(path, columns)

@@ -12,9 +12,13 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta, timezone
 from pathlib import Path
 
+import numpy as np
+
 from pipeline.synth.av2_writer import yaw_quaternion
 from pipeline.synth.ids import token
+from pipeline.synth.lidar import Sweep
 from pipeline.synth.logs import Cuboid, LogPlan, frame_cuboids
+from pipeline.synth.rig import NUSCENES_CAMERAS, ROOF_LIDAR
 from pipeline.synth.world import World
 
 VERSION = "v1.0-mini"
@@ -39,9 +43,43 @@ class Channel:
 
 
 # the real rig: LIDAR_TOP turned -90 deg about z, so its axes are x right, y forward
+LIDAR_YAW = -math.pi / 2
 LIDAR_TOP = Channel(
-    "LIDAR_TOP", "lidar", [0.943, 0.0, 1.84], [math.cos(-math.pi / 4), 0.0, 0.0, math.sin(-math.pi / 4)]
+    "LIDAR_TOP",
+    "lidar",
+    list(ROOF_LIDAR.translation),
+    [math.cos(LIDAR_YAW / 2), 0.0, 0.0, math.sin(LIDAR_YAW / 2)],
 )
+
+
+def camera_channels() -> list[Channel]:
+    return [
+        Channel(
+            c.name,
+            "camera",
+            list(c.translation),
+            c.quaternion.tolist(),
+            c.intrinsics.tolist(),
+            c.width,
+            c.height,
+        )
+        for c in NUSCENES_CAMERAS
+    ]
+
+
+def channels(sensors: bool) -> list[Channel]:
+    """The sample_data channels of a sample: LIDAR_TOP (its pose keys the frame), cameras with sensors."""
+    return [LIDAR_TOP] + (camera_channels() if sensors else [])
+
+
+def write_pcd_bin(path: Path, sweep: Sweep) -> None:
+    """float32 x, y, z, intensity, ring per point, in the LIDAR_TOP frame (x right, y forward)."""
+    c, s = math.cos(LIDAR_YAW), math.sin(LIDAR_YAW)
+    d = sweep.xyz - np.array(ROOF_LIDAR.translation)
+    x, y = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]  # ego -> lidar: the inverse yaw
+    points = np.column_stack([x, y, d[:, 2], sweep.intensity, sweep.laser]).astype(np.float32)
+    path.write_bytes(points.tobytes())
+
 
 CATEGORIES = [
     (
@@ -79,21 +117,10 @@ def sample_filename(plan: LogPlan, channel: Channel, ns: int) -> str:
     return f"samples/{channel.name}/{logfile_name(plan)}__{channel.name}__{ns // 1000}{channel.extension}"
 
 
-TABLES = (
-    "category",
-    "attribute",
-    "visibility",
-    "instance",
-    "sensor",
-    "calibrated_sensor",
-    "ego_pose",
-    "log",
-    "scene",
-    "sample",
-    "sample_data",
-    "sample_annotation",
-    "map",
-)
+TABLES = (  # every table NuScenes() loads
+    "category attribute visibility instance sensor calibrated_sensor ego_pose log scene sample sample_data "
+    "sample_annotation map"
+).split()
 
 
 class _Tables:

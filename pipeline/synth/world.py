@@ -92,6 +92,7 @@ class World:
     routes: list[Route]
     parked_cars: list[ParkedCar]
     crosswalks: list[Crosswalk]
+    poles: list[tuple[float, float]]  # street lights beside the roads (LiDAR clutter)
     canvas: tuple[float, float]  # the map covers [0, w] x [0, h]
 
     def token_of(self, lane_id: int) -> str:
@@ -242,10 +243,11 @@ def build_world(seed: int = 0) -> World:
     crosswalks = [_crosswalk(road) for road in (av_east, st_north, av_west, st_south)]
     kerbs = [(st_south, -1), (st_south, 1), (st_north, 1), (road_e_west, -1), (road_e_east, -1)]
     cars = _parked_cars(rng, kerbs + [(arms[0], -1)])  # side -1: right of the reference line
+    poles = _poles([(av_east, 1), (st_north, -1), (st_south, 1), (road_e_west, 1), (road_e_east, 1)])
     xy = np.concatenate([net.lanes[i].boundary(side).points()[:, :2] for i in net.lanes for side in SIDES])
     canvas = tuple(float(math.ceil(v + MAP_MARGIN_M)) for v in xy.max(axis=0))
     assert xy.min() > MAP_MARGIN_M / 2, "the map must stay in positive coordinates"
-    return World(seed, dict(sorted(net.lanes.items())), landmarks, routes, cars, crosswalks, canvas)
+    return World(seed, dict(sorted(net.lanes.items())), landmarks, routes, cars, crosswalks, poles, canvas)
 
 
 def _xy(pose: Pose) -> tuple[float, float]:
@@ -277,3 +279,15 @@ def _parked_cars(rng: np.random.Generator, kerbs: list[tuple[Road, int]]) -> lis
             length, width, height = rng.uniform(4.3, 4.9), rng.uniform(1.8, 1.95), rng.uniform(1.45, 1.7)
             cars.append(ParkedCar(*(float(v) for v in (x, y, heading, length, width, height))))
     return cars
+
+
+def _poles(kerbs: list[tuple[Road, int]], spacing: float = 30.0) -> list[tuple[float, float]]:
+    """Street lights every `spacing` metres, 2.5 m outside the kerb."""
+    poles = []
+    for road, side in kerbs:
+        reference = road.reference[0]
+        lanes = len(road.backward if side > 0 else road.forward)
+        for x, y, heading in reference.at(np.arange(5.0, reference.length, spacing)):
+            left = side * (lanes * LANE_WIDTH + 2.5)
+            poles.append((float(x - left * math.sin(heading)), float(y + left * math.cos(heading))))
+    return poles

@@ -18,11 +18,12 @@ def synth(
     logs: int = typer.Option(4, help="Logs (AV2) / scenes (nuScenes) to write"),
     frames_per_log: int = typer.Option(20, help="Key frames per log"),
     seed: int = typer.Option(0, help="Random seed; the same seed writes the same bytes"),
+    sensors: bool = typer.Option(True, help="Also render camera images and LiDAR sweeps"),
 ) -> None:
     """Write a tiny synthetic raw dataset in the real AV2 and nuScenes on-disk formats."""
     from pipeline.synth import synth as write_synth
 
-    write_synth(out, logs=logs, frames_per_log=frames_per_log, seed=seed)
+    write_synth(out, logs=logs, frames_per_log=frames_per_log, seed=seed, sensors=sensors)
 
 
 @app.command()

@@ -1,0 +1,120 @@
+"""`cli eval`: predict every frame of a split, turn the paths into a lane graph, score it.
+
+Writes RUN_DIR/predictions.parquet (the `graphs` table schema of docs/DATA.md, the format `cli score`
+reads) and RUN_DIR/metrics.json: the TOPO scores plus the parameter count, the frame rates (network
+only, and with post-processing: path selection and Path2Graph), the device and the config.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from contextlib import nullcontext
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+import torch
+from torch.utils.data import DataLoader
+
+from baselines.config import Config
+from baselines.data import PreparedDataset, collate
+from baselines.lanegap import LaneGAP, select_paths
+from baselines.train import amp_settings
+from benchmark.metrics import score_graphs
+from benchmark.path2graph import path2graph
+from pipeline import io
+from pipeline.lane_graph import LaneGraph
+
+
+def load_model(run_dir: Path, device: torch.device) -> tuple[LaneGAP, Config]:
+    config = Config.load(run_dir / "config.json")
+    model = LaneGAP(config)
+    checkpoint = torch.load(run_dir / "checkpoint.pt", map_location="cpu", weights_only=False)
+    model.load_state_dict(checkpoint["model"])
+    return model.to(device).eval(), config
+
+
+def graph_row(frame_id: str, graph: LaneGraph) -> dict:
+    return {
+        "frame_id": frame_id,
+        "x": np.asarray(graph.x, np.float32).tolist(),
+        "y": np.asarray(graph.y, np.float32).tolist(),
+        "src": np.asarray(graph.src, np.int32).tolist(),
+        "dst": np.asarray(graph.dst, np.int32).tolist(),
+    }
+
+
+def evaluate(
+    run_dir: Path,
+    data_dir: Path | None = None,
+    split: str | None = None,
+    device: str | None = None,
+    warmup_frames: int = 5,
+) -> dict:
+    """Predict, run Path2Graph, score; returns (and writes) the metrics."""
+    run_dir = Path(run_dir)
+    device_ = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    model, config = load_model(run_dir, device_)
+    if config.train.threads and device_.type == "cpu":
+        torch.set_num_threads(config.train.threads)
+    if data_dir is None:
+        data_dir = Path(json.loads((run_dir / "run.json").read_text())["data"])
+    split = split or config.train.val_split
+    dataset = PreparedDataset(Path(data_dir), split, config)
+    loader = DataLoader(dataset, batch_size=1, num_workers=config.data.num_workers, collate_fn=collate)
+    autocast_dtype, _ = amp_settings(device_, config.train.amp)
+    warmup_frames = min(warmup_frames, len(dataset) - 1)  # time at least one frame
+
+    def sync() -> None:
+        if device_.type == "cuda":
+            torch.cuda.synchronize(device_)
+
+    rows, predictions = [], {}
+    net_seconds = total_seconds = 0.0
+    for index, batch in enumerate(loader):
+        sensors = batch.sensors.to(device_)
+        sync()
+        start = time.perf_counter()
+        autocast = torch.autocast(device_.type, dtype=autocast_dtype) if autocast_dtype else nullcontext()
+        with torch.no_grad(), autocast:
+            outputs = model(sensors)
+        sync()
+        network_done = time.perf_counter()
+        _, points = select_paths(outputs, config.decoder.score_threshold)[0]
+        paths = [config.encoder.unit_to_metres(p.numpy().astype(np.float64)) for p in points]
+        graph = path2graph(paths)
+        done = time.perf_counter()
+        if index >= warmup_frames:
+            net_seconds += network_done - start
+            total_seconds += done - start
+        predictions[batch.frame_ids[0]] = graph
+        rows.append(graph_row(batch.frame_ids[0], graph))
+    table = pa.Table.from_pylist(rows, io.SCHEMAS["graphs"])
+    pq.write_table(table, run_dir / "predictions.parquet")
+
+    ids = pa.array(sorted(predictions))
+    truth = io.read_table(Path(data_dir), "graphs", filter=pc.field("frame_id").isin(ids)).to_pylist()
+    ground_truth = {
+        r["frame_id"]: LaneGraph(
+            np.array(r["x"], np.float32), np.array(r["y"], np.float32),
+            np.array(r["src"], np.int32), np.array(r["dst"], np.int32),
+        )
+        for r in truth
+    }  # fmt: skip
+    scores = score_graphs((predictions[frame_id], ground_truth[frame_id]) for frame_id in sorted(predictions))
+    timed = len(dataset) - warmup_frames
+    metrics = {
+        **scores,
+        "split": split,
+        "data": str(data_dir),
+        "params": sum(p.numel() for p in model.parameters()),
+        "fps_net": timed / net_seconds if net_seconds else 0.0,
+        "fps": timed / total_seconds if total_seconds else 0.0,
+        "device": torch.cuda.get_device_name(device_) if device_.type == "cuda" else "cpu",
+        "config": config.to_dict(),
+    }
+    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    return metrics

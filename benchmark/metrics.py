@@ -169,7 +169,22 @@ class Candidates:
 
 
 @numba.njit(cache=True)
-def _near_pairs(a_xy, b_xy, radius, eps):
+def _rows(keys, n):
+    """CSR of the ranks 0..len(keys)-1 grouped by key, ascending within each row."""
+    ptr = np.zeros(n + 1, np.int64)
+    for key in keys:
+        ptr[key + 1] += 1
+    ptr = np.cumsum(ptr)
+    fill = ptr[:-1].copy()
+    ranks = np.empty(len(keys), np.int64)
+    for r in range(len(keys)):
+        ranks[fill[keys[r]]] = r
+        fill[keys[r]] += 1
+    return ptr, ranks
+
+
+@numba.njit(cache=True)
+def near_pairs(a_xy, b_xy, radius, eps):
     """(count per a, b, distance) of the pairs closer than radius - eps, grouped by a, b ascending.
 
     B is bucketed in square cells of side >= radius, so each a only looks at the 3 x 3 cells around
@@ -182,9 +197,7 @@ def _near_pairs(a_xy, b_xy, radius, eps):
     x0, y0 = bx.min(), by.min()
     nx, ny = bx.max() - x0 + 1, by.max() - y0 + 1
     cell_of_b = (bx - x0) * ny + (by - y0)
-    order = np.argsort(cell_of_b, kind="mergesort")
-    start = np.zeros(nx * ny + 1, np.int64)
-    start[1:] = np.cumsum(np.bincount(cell_of_b, minlength=nx * ny))
+    start, order = _rows(cell_of_b, nx * ny)  # B by cell, ascending within a cell
 
     limit = radius - eps
     count = np.zeros(len(a_xy), np.int64)
@@ -230,24 +243,9 @@ def _ties_by_index(order, dist):
     return order
 
 
-@numba.njit(cache=True)
-def _rows(keys, n):
-    """CSR of the ranks 0..len(keys)-1 grouped by key, ascending within each row."""
-    ptr = np.zeros(n + 1, np.int64)
-    for key in keys:
-        ptr[key + 1] += 1
-    ptr = np.cumsum(ptr)
-    fill = ptr[:-1].copy()
-    ranks = np.empty(len(keys), np.int64)
-    for r in range(len(keys)):
-        ranks[fill[keys[r]]] = r
-        fill[keys[r]] += 1
-    return ptr, ranks
-
-
 def candidate_pairs(a_xy: np.ndarray, b_xy: np.ndarray, radius: float) -> Candidates:
     if len(a_xy) and len(b_xy):
-        count, pair_b, dist = _near_pairs(a_xy, b_xy, radius, EPS)
+        count, pair_b, dist = near_pairs(a_xy, b_xy, radius, EPS)
     else:
         count, pair_b, dist = np.zeros(len(a_xy), np.int64), np.zeros(0, np.int64), np.zeros(0)
     pair_a = np.repeat(np.arange(len(a_xy)), count)
@@ -311,31 +309,39 @@ def match(cand: Candidates, n_a: int, n_b: int, matching: str) -> Matching:
 def _reach(indptr, nbr, weight, source, limit, dist, stamp, queued, queue, sid, out):
     """Reach(source): shortest distances pruned at limit, by label correcting with a FIFO queue.
 
-    Writes the vertices to out (returns how many) and marks them stamp == sid. dist, stamp, queued
-    and queue are work arrays reused across calls. On lane graphs (chains with a few forks) this
-    visits each vertex about once and needs no heap; the final labels are the shortest distances,
-    the very floats Dijkstra computes (the minimum over paths of the sums along them).
+    Writes the vertices to out (returns how many) and marks them stamp == sid; dist, stamp, queued
+    and queue are work arrays reused across calls. From each vertex it walks straight on into the
+    first neighbour it improves and queues the others, so a chain costs a tight loop and no heap.
+    Any order of relaxations ends at the same labels: the shortest distances, the very floats
+    Dijkstra computes (the minimum over paths of the sums taken along them).
     """
     stamp[source], dist[source], out[0] = sid, 0.0, source
     count, head, tail, size = 1, 0, 1, len(queue)
     queue[0], queued[source] = source, sid
     while head != tail:
         u = queue[head]
-        head = (head + 1) % size
+        head = head + 1 if head + 1 < size else 0
         queued[u] = 0
-        for e in range(indptr[u], indptr[u + 1]):
-            v, dv = nbr[e], dist[u] + weight[e]
-            if dv >= limit or (stamp[v] == sid and dv >= dist[v]):
-                continue
-            if stamp[v] != sid:
-                stamp[v] = sid
-                out[count] = v
-                count += 1
-            dist[v] = dv
-            if queued[v] != sid:
-                queued[v] = sid
-                queue[tail] = v
-                tail = (tail + 1) % size
+        while u >= 0:
+            walk_on = -1
+            for e in range(indptr[u], indptr[u + 1]):
+                v, dv = nbr[e], dist[u] + weight[e]
+                if dv >= limit or (stamp[v] == sid and dv >= dist[v]):
+                    continue
+                if stamp[v] != sid:
+                    stamp[v] = sid
+                    out[count] = v
+                    count += 1
+                dist[v] = dv
+                if queued[v] == sid:
+                    continue
+                if walk_on < 0:
+                    walk_on = v
+                else:
+                    queued[v] = sid
+                    queue[tail] = v
+                    tail = tail + 1 if tail + 1 < size else 0
+            u = walk_on
     return count
 
 
@@ -392,7 +398,7 @@ def _pair_counts(
     touching the window's vertices once and only the few pairs whose decision changes.
     """
     n_a, n_b, n_cand = len(a_indptr) - 1, len(b_indptr) - 1, len(cand_a)
-    size_a, size_b, matched = np.zeros(len(pair_a), np.int64), np.zeros(len(pair_a), np.int64), np.zeros(len(pair_a), np.int64)
+    size_a, size_b, matched = np.zeros((3, len(pair_a)), np.int64)
     dist_a, stamp_a, queued_a = np.empty(n_a), np.zeros(n_a, np.int64), np.zeros(n_a, np.int64)
     dist_b, stamp_b, queued_b = np.empty(n_b), np.zeros(n_b, np.int64), np.zeros(n_b, np.int64)
     reach_a, queue_a = np.empty(n_a, np.int64), np.empty(n_a + 1, np.int64)
@@ -526,16 +532,43 @@ def prf(pre_sum: float, pre_den: float, rec_sum: float, rec_den: float) -> dict:
     return {"precision": p, "recall": r, "f1": ratio(2 * p * r, p + r)}
 
 
+class FractionSum:
+    """A sum of fractions m / s kept exact, as the total numerator of each denominator s: the sums
+    over pairs and frames come out the same whatever their order, and equal the reference's."""
+
+    def __init__(self, numerators: np.ndarray | None = None):
+        self.numerators = np.trim_zeros(np.zeros(0, np.int64) if numerators is None else numerators, "b")
+
+    @classmethod
+    def of(cls, m: np.ndarray, s: np.ndarray) -> FractionSum:
+        return cls(np.bincount(s, weights=m).astype(np.int64) if len(s) else None)
+
+    def __add__(self, other: FractionSum) -> FractionSum:
+        n = max(len(self.numerators), len(other.numerators))
+        a, b = self.numerators, other.numerators
+        return FractionSum(np.pad(a, (0, n - len(a))) + np.pad(b, (0, n - len(b))))
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, FractionSum) and np.array_equal(self.numerators, other.numerators)
+
+    def __repr__(self) -> str:
+        return f"FractionSum({self.value()})"
+
+    def value(self) -> float:
+        s = np.flatnonzero(self.numerators)
+        return math.fsum(self.numerators[s] / s)
+
+
 @dataclass
 class TopoCounts:
     """The sums of one mode (directed or undirected) over the frames added so far."""
 
-    pre: list[float] = field(default_factory=list)  # per frame: sum of m / |S_p| over the pairs
-    rec: list[float] = field(default_factory=list)
+    pre: FractionSum = field(default_factory=FractionSum)  # sum over pairs of m / |S_p|
+    rec: FractionSum = field(default_factory=FractionSum)  # sum over pairs of m / |S_g|
     n_pred: int = 0
     n_gt: int = 0
-    junction_pre: list[float] = field(default_factory=list)
-    junction_rec: list[float] = field(default_factory=list)
+    junction_pre: FractionSum = field(default_factory=FractionSum)
+    junction_rec: FractionSum = field(default_factory=FractionSum)
     n_anchored: int = 0
     n_junctions: int = 0
 
@@ -544,11 +577,10 @@ class TopoCounts:
             setattr(self, name, getattr(self, name) + value)
 
     def scores(self) -> dict:
-        # math.fsum: the correctly rounded sum, so that no summation order changes a digit
         return {
-            "topo": prf(math.fsum(self.pre), self.n_pred, math.fsum(self.rec), self.n_gt),
+            "topo": prf(self.pre.value(), self.n_pred, self.rec.value(), self.n_gt),
             "junction_topo": prf(
-                math.fsum(self.junction_pre), self.n_anchored, math.fsum(self.junction_rec), self.n_junctions
+                self.junction_pre.value(), self.n_anchored, self.junction_rec.value(), self.n_junctions
             ),
         }
 
@@ -572,12 +604,12 @@ def mode_counts(pred: Dense, gt: Dense, cand: Candidates, m: Matching, params: M
     both = pair_counts(pred, gt, all_p, all_g, cand, m, params)
     topo, junc = slice(0, len(pair_p)), slice(len(pair_p), None)
     return TopoCounts(
-        pre=[math.fsum(both.matched[topo] / both.size_pred[topo])],
-        rec=[math.fsum(both.matched[topo] / both.size_gt[topo])],
+        pre=FractionSum.of(both.matched[topo], both.size_pred[topo]),
+        rec=FractionSum.of(both.matched[topo], both.size_gt[topo]),
         n_pred=pred.n,
         n_gt=gt.n,
-        junction_pre=[math.fsum(both.matched[junc] / both.size_pred[junc])],
-        junction_rec=[math.fsum(both.matched[junc] / both.size_gt[junc])],
+        junction_pre=FractionSum.of(both.matched[junc], both.size_pred[junc]),
+        junction_rec=FractionSum.of(both.matched[junc], both.size_gt[junc]),
         n_anchored=len(j_gt),
         n_junctions=int(np.count_nonzero(gt.junction)),
     )

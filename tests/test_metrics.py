@@ -7,11 +7,10 @@ import math
 
 import networkx as nx
 import numpy as np
-import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from benchmark.metrics import EPS, MetricParams, TopoCounts, frame_counts, score_graphs
+from benchmark.metrics import EPS, FractionSum, MetricParams, TopoCounts, frame_counts
 from pipeline.lane_graph import LaneGraph
 
 # ---------------------------------------------------------------------------------------------------
@@ -74,9 +73,14 @@ def ref_reach(g, v, radius):
 
 
 def ref_pair(pa, ga, pb, gb, p, g, params):
+    """(m, |S_p|, |S_g|) of a pair."""
     s_p, s_g = ref_reach(ga, p, params.reach_radius), ref_reach(gb, g, params.reach_radius)
-    m = len(ref_greedy(pa, pb, s_p, s_g, params.match_radius))
-    return m / len(s_p), m / len(s_g)
+    return len(ref_greedy(pa, pb, s_p, s_g, params.match_radius)), len(s_p), len(s_g)
+
+
+def fractions(counts, which):
+    """sum of m / |S| over the pairs, which = 1: |S_p|, 2: |S_g|."""
+    return FractionSum.of(np.array([c[0] for c in counts], np.int64), np.array([c[which] for c in counts], np.int64))
 
 
 def ref_counts(pred: LaneGraph, gt: LaneGraph, params: MetricParams) -> dict[str, TopoCounts]:
@@ -94,12 +98,12 @@ def ref_counts(pred: LaneGraph, gt: LaneGraph, params: MetricParams) -> dict[str
             if anchor is not None:
                 j_scores.append(ref_pair(pa, ga, pb, gb, anchor, j, params))
         out[mode] = TopoCounts(
-            pre=[math.fsum(s[0] for s in scores)],
-            rec=[math.fsum(s[1] for s in scores)],
+            pre=fractions(scores, 1),
+            rec=fractions(scores, 2),
             n_pred=len(pa),
             n_gt=len(pb),
-            junction_pre=[math.fsum(s[0] for s in j_scores)],
-            junction_rec=[math.fsum(s[1] for s in j_scores)],
+            junction_pre=fractions(j_scores, 1),
+            junction_rec=fractions(j_scores, 2),
             n_anchored=len(j_scores),
             n_junctions=len(junctions),
         )

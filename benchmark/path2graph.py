@@ -154,8 +154,9 @@ def path2graph(paths: Sequence[np.ndarray], step: float = 0.15, merge_radius: fl
     rank[np.argsort(root_first)] = np.arange(len(roots))
     out_of_vertex = rank[out_of_vertex.ravel()]
     n_out = len(roots)
-    base = np.empty((n_out, 2))
-    base[out_of_vertex[::-1]] = points[::-1]  # each cluster's first vertex
+    first_vertex = np.full(n_out, n)
+    np.minimum.at(first_vertex, out_of_vertex, np.arange(n))
+    base = points[first_vertex]
     offset = points - base[out_of_vertex]  # first + mean offset: a cluster of one keeps its floats
     size = np.bincount(out_of_vertex, minlength=n_out)[:, None]
     mean = base + np.stack([np.bincount(out_of_vertex, offset[:, i], n_out) for i in (0, 1)], axis=1) / size

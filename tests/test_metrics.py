@@ -24,7 +24,11 @@ def ref_dense(graph: LaneGraph, step: float, directed: bool):
     edges = sorted({(int(s), int(d)) for s, d in zip(graph.src, graph.dst) if s != d})
     if not directed:  # one undirected edge per pair, in the orientation that comes first
         seen: set = set()
-        edges = [(u, v) for u, v in edges if not ((min(u, v), max(u, v)) in seen or seen.add((min(u, v), max(u, v))))]
+        edges = [
+            (u, v)
+            for u, v in edges
+            if not ((min(u, v), max(u, v)) in seen or seen.add((min(u, v), max(u, v))))
+        ]
     g = nx.DiGraph() if directed else nx.Graph()
     g.add_nodes_from(range(n))
     for u, v in edges:
@@ -80,7 +84,9 @@ def ref_pair(pa, ga, pb, gb, p, g, params):
 
 def fractions(counts, which):
     """sum of m / |S| over the pairs, which = 1: |S_p|, 2: |S_g|."""
-    return FractionSum.of(np.array([c[0] for c in counts], np.int64), np.array([c[which] for c in counts], np.int64))
+    return FractionSum.of(
+        np.array([c[0] for c in counts], np.int64), np.array([c[which] for c in counts], np.int64)
+    )
 
 
 def ref_counts(pred: LaneGraph, gt: LaneGraph, params: MetricParams) -> dict[str, TopoCounts]:
@@ -117,7 +123,12 @@ def ref_counts(pred: LaneGraph, gt: LaneGraph, params: MetricParams) -> dict[str
 def graph(points, edges) -> LaneGraph:
     xy = np.asarray(points, np.float64).reshape(-1, 2)
     e = np.asarray(edges, np.int64).reshape(-1, 2)
-    return LaneGraph(xy[:, 0].astype(np.float32), xy[:, 1].astype(np.float32), e[:, 0].astype(np.int32), e[:, 1].astype(np.int32))
+    return LaneGraph(
+        xy[:, 0].astype(np.float32),
+        xy[:, 1].astype(np.float32),
+        e[:, 0].astype(np.int32),
+        e[:, 1].astype(np.int32),
+    )
 
 
 @st.composite
@@ -126,7 +137,9 @@ def random_graphs(draw, max_vertices: int = 7):
     n = draw(st.integers(0, max_vertices))
     coord = st.integers(-30, 30).map(lambda v: v * 0.05)
     points = [(draw(coord), draw(coord)) for _ in range(n)]
-    edges = draw(st.lists(st.tuples(st.integers(0, n - 1), st.integers(0, n - 1)), max_size=2 * n)) if n else []
+    edges = (
+        draw(st.lists(st.tuples(st.integers(0, n - 1), st.integers(0, n - 1)), max_size=2 * n)) if n else []
+    )
     return graph(points, edges)
 
 

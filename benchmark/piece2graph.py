@@ -1,0 +1,80 @@
+"""Piece2Graph (STSU / CGNet style): pieces and the links between them back to one lane graph.
+
+1. Pieces scoring below piece_threshold are dropped, and so are links scoring below link_threshold
+   or touching a dropped piece.
+2. Each piece becomes a chain of its points.
+3. A link i -> j joins the end of i to the start of j. The endpoints that links join, directly or
+   through other links (the end of i with the starts of all its successors, and so on), become one
+   vertex at their mean: the joint moves to the mean, as STSU and CGNet do. Endpoints at identical
+   coordinates are one vertex as well.
+4. Self-loops and repeated edges are dropped.
+On ground-truth pieces, linked endpoints are the same vertex, so the graph comes back exactly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from pipeline.lane_graph import LaneGraph
+
+
+def piece2graph(
+    pieces: Sequence[np.ndarray],
+    links: np.ndarray,
+    piece_scores: np.ndarray | None = None,
+    link_scores: np.ndarray | None = None,
+    piece_threshold: float = 0.5,
+    link_threshold: float = 0.5,
+) -> LaneGraph:
+    """pieces: (n_i, 2) polylines in driving order; links: (L, 2) piece indices (src, dst).
+    Scores default to 1 (keep everything). Coordinates stay float64."""
+    links = np.asarray(links, np.int64).reshape(-1, 2)
+    keep_piece = (
+        np.ones(len(pieces), bool) if piece_scores is None else np.asarray(piece_scores) >= piece_threshold
+    )
+    keep_piece &= np.array([len(p) >= 2 for p in pieces], bool).reshape(-1)
+    keep_link = (
+        np.ones(len(links), bool) if link_scores is None else np.asarray(link_scores) >= link_threshold
+    )
+    keep_link &= keep_piece[links[:, 0]] & keep_piece[links[:, 1]]
+    kept = np.flatnonzero(keep_piece)
+    if len(kept) == 0:
+        return LaneGraph.empty()
+    chains = [np.asarray(pieces[i], np.float64).reshape(-1, 2) for i in kept]
+    sizes = np.array([len(c) for c in chains])
+    points = np.concatenate(chains)
+    offset = np.concatenate([[0], np.cumsum(sizes)])
+    new_index = np.full(len(pieces), -1)
+    new_index[kept] = np.arange(len(kept))
+
+    # endpoints joined by links or by identical coordinates become one vertex (connected components)
+    start, end = offset[:-1], offset[1:] - 1
+    joined = [np.stack([end[new_index[links[keep_link, 0]]], start[new_index[links[keep_link, 1]]]], axis=1)]
+    ends = np.concatenate([start, end])
+    _, first_same, same = np.unique(points[ends], axis=0, return_index=True, return_inverse=True)
+    joined.append(np.stack([ends, ends[first_same[same.ravel()]]], axis=1))
+    pairs = np.concatenate(joined)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
+    _, label = connected_components(graph, directed=False)
+
+    # vertices numbered by first appearance; each at the mean of its points (first + mean offset, so
+    # that a vertex of one point, or of identical points, keeps its floats)
+    _, first, vertex = np.unique(label, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), np.int64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    vertex = rank[vertex.ravel()]
+    base = points[np.sort(first)]
+    size = np.bincount(vertex)[:, None]
+    offsets = points - base[vertex]
+    xy = base + np.stack([np.bincount(vertex, offsets[:, i]) for i in (0, 1)], axis=1) / size
+
+    is_last = np.zeros(len(points), bool)
+    is_last[end] = True
+    src, dst = vertex[:-1][~is_last[:-1]], vertex[1:][~is_last[:-1]]
+    n = len(xy)
+    key = np.unique((src * n + dst)[src != dst])
+    return LaneGraph(xy[:, 0], xy[:, 1], (key // n).astype(np.int32), (key % n).astype(np.int32))

@@ -76,5 +76,77 @@ def prepare(
     Console().print(table)
 
 
+@app.command()
+def train(
+    data: Path = typer.Option(None, help="Prepared dataset (cli prepare --out); on --resume: the run's"),
+    out: Path = typer.Option(..., help="Run folder: config.json, checkpoint.pt, log.jsonl"),
+    model: str = typer.Option("lanegap", help="Baseline to train: lanegap"),
+    preset: str = typer.Option("paper", help="paper (the paper's settings) or tiny (CPU, seconds per epoch)"),
+    modality: str = typer.Option(None, help="camera, lidar or fusion (default: the preset's, camera)"),
+    epochs: int = typer.Option(None, help="Epochs (paper: 24; 110 for the long schedule)"),
+    batch_size: int = typer.Option(None, help="Batch size in total over all processes"),
+    path_points: int = typer.Option(None, help="Points per path N: 10, 20, 30 or 40"),
+    bezier_points: int = typer.Option(None, help="Bezier head with K control points (paper: 5); 0: polyline"),
+    aux_seg: bool = typer.Option(None, "--aux-seg/--no-aux-seg", help="Auxiliary BEV segmentation loss"),
+    pretrained: Path = typer.Option(None, help="Local torchvision ResNet state_dict file for the backbone"),
+    set_: list[str] = typer.Option([], "--set", help="Any config field: section.field=value (repeatable)"),
+    resume: bool = typer.Option(False, help="Continue the run in --out from its last checkpoint"),
+    stop_after: int = typer.Option(0, help="End this run after that many epochs (0: all); --resume goes on"),
+) -> None:
+    """Train a baseline on a prepared dataset (DDP when started by torchrun)."""
+    import json
+
+    from baselines.config import Config, apply_overrides, resolve_config
+    from baselines.train import train as run_train
+
+    if model != "lanegap":
+        typer.secho(f"error: unknown model {model!r} (available: lanegap)", fg="red", err=True)
+        raise typer.Exit(1)
+    try:
+        if resume:  # the run's own config; only --epochs and --set may change it (e.g. to extend it)
+            config = Config.load(out / "config.json")
+            apply_overrides(config, ([f"train.epochs={epochs}"] if epochs else []) + set_)
+            data = data or Path(json.loads((out / "run.json").read_text())["data"])
+        else:
+            weights = str(pretrained) if pretrained else None
+            config = resolve_config(
+                preset, modality, epochs, batch_size, path_points, bezier_points, aux_seg, weights, set_
+            )
+        if data is None:
+            raise ValueError("--data is required")
+        summary = run_train(config, data, out, resume=resume, stop_after=stop_after)
+    except (ValueError, FileNotFoundError) as error:
+        typer.secho(f"error: {error}", fg="red", err=True)
+        raise typer.Exit(1) from error
+    typer.echo(json.dumps(summary))
+
+
+@app.command("eval")
+def eval_(
+    run: Path = typer.Option(..., help="Run folder written by cli train"),
+    data: Path = typer.Option(None, help="Prepared dataset folder; default: the one the run trained on"),
+    split: str = typer.Option(None, help="Split to predict; default: the config's val split"),
+    device: str = typer.Option(None, help="cpu or cuda; default: cuda when available"),
+) -> None:
+    """Predict a split, run Path2Graph, write predictions.parquet and metrics.json into the run folder."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from baselines.evaluate import evaluate
+
+    try:
+        metrics = evaluate(run, data, split, device)
+    except (ValueError, FileNotFoundError) as error:
+        typer.secho(f"error: {error}", fg="red", err=True)
+        raise typer.Exit(1) from error
+    table = Table(title=f"{run} on {metrics['split']} ({metrics['frames']} frames)")
+    for name in ("precision", "recall", "f1"):
+        table.add_row(f"directed TOPO {name}", f"{metrics['directed']['topo'][name]:.3f}")
+    for name in ("params", "fps_net", "fps", "device"):
+        value = metrics[name]
+        table.add_row(name, f"{value:.2f}" if isinstance(value, float) else str(value))
+    Console().print(table)
+
+
 if __name__ == "__main__":
     app()

@@ -231,3 +231,34 @@ def _coerce(current: Any, value: Any, name: str) -> Any:
     if isinstance(current, int):
         return int(value)
     return value
+
+
+def resolve_config(
+    preset: str,
+    modality: str | None = None,
+    epochs: int | None = None,
+    batch_size: int | None = None,
+    path_points: int | None = None,
+    bezier_points: int | None = None,
+    aux_seg: bool | None = None,
+    backbone_weights: str | None = None,
+    overrides: list[str] | None = None,
+) -> Config:
+    """A preset with the `cli train` flags (None: keep the preset's value), then `--set` overrides."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}")
+    config = PRESETS[preset]()
+    flags = {
+        "encoder.modality": modality,
+        "train.epochs": epochs,
+        "train.batch_size": batch_size,
+        "decoder.path_points": path_points,
+        "decoder.bezier_points": bezier_points,
+        "decoder.aux_seg": aux_seg,
+        "encoder.backbone_weights": backbone_weights,
+    }
+    apply_overrides(config, [f"{name}={value}" for name, value in flags.items() if value is not None])
+    apply_overrides(config, overrides or [])
+    if config.encoder.modality not in ("camera", "lidar", "fusion"):
+        raise ValueError(f"modality must be camera, lidar or fusion, not {config.encoder.modality!r}")
+    return config

@@ -34,6 +34,16 @@ def bernstein_matrix(num_points: int, num_controls: int) -> torch.Tensor:
     return (binomial * t**k * (1 - t) ** (degree - k)).float()
 
 
+def initial_lanes(num_paths: int, points: int) -> torch.Tensor:
+    """(num_paths, points, 2) inverse-sigmoid unit coordinates of straight lanes along y: path i at
+    u = (i // 2 + 0.5) / ceil(num_paths / 2), even paths driving forward (v from 1 to 0), odd backward."""
+    lateral = (torch.arange(num_paths) // 2 + 0.5) / math.ceil(num_paths / 2)
+    along = torch.linspace(0.95, 0.05, points)
+    v = torch.where((torch.arange(num_paths) % 2 == 0)[:, None], along, along.flip(0))
+    u = lateral[:, None].expand(-1, points)
+    return inverse_sigmoid(torch.stack([u, v], -1))
+
+
 def mlp(dim: int, out: int, layers: int = 3) -> nn.Sequential:
     modules: list[nn.Module] = []
     for _ in range(layers - 1):
@@ -78,7 +88,10 @@ class LaneGAP(nn.Module):
         # the query of point j of path i is instance_i + point_j).
         self.instance_embedding = nn.Parameter(torch.randn(decoder.num_paths, 2 * dim) * 0.02)
         self.point_embedding = nn.Parameter(torch.randn(self.queries_per_path, 2 * dim) * 0.02)
-        self.reference_head = nn.Linear(dim, 2)
+        # Learned initial points of every path query, in inverse-sigmoid space. They start as straight
+        # lanes spread across the BEV width, alternately driving forward and backward: paths mostly
+        # run along the road, and starting there instead of all at the centre speeds up training.
+        self.initial_reference = nn.Parameter(initial_lanes(decoder.num_paths, self.queries_per_path))
         anchors = decoder.bezier_points if self.bezier else 1
         self.layers = nn.ModuleList(PathDecoderLayer(dim, decoder, anchors) for _ in range(decoder.layers))
         self.class_heads = nn.ModuleList(mlp(dim, 1, 2) for _ in range(decoder.layers))
@@ -113,11 +126,14 @@ class LaneGAP(nn.Module):
         return expanded.reshape(batch, -1, self.queries_per_path, 2)
 
     def forward(self, batch: SensorBatch) -> dict[str, torch.Tensor]:
-        bev = self.encoder(batch)
+        return self.decode(self.encoder(batch))
+
+    def decode(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
+        """BEV features (B, C, H, W) -> the outputs of `forward`."""
         num_batch, dim = bev.shape[:2]
         queries = (self.instance_embedding[:, None] + self.point_embedding[None]).flatten(0, 1)
         content, pos = queries.unsqueeze(0).expand(num_batch, -1, -1).split(dim, dim=-1)
-        reference = self.reference_head(pos).sigmoid()
+        reference = self.initial_reference.sigmoid().view(1, -1, 2).expand(num_batch, -1, -1)
         x = content
         all_logits, all_points = [], []
         for layer, class_head, point_head in zip(

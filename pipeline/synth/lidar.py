@@ -13,6 +13,7 @@ import numpy as np
 
 from pipeline.synth.rig import LidarSpec
 from pipeline.synth.texture import ASPHALT, GRASS, WHITE, YELLOW, GroundTexture
+from pipeline.synth.world import Box
 
 SWEEP_NS = 100_000_000  # one revolution per frame, 10 Hz
 INTENSITY_MEAN = np.zeros(4)
@@ -20,18 +21,6 @@ INTENSITY_MEAN[[GRASS, ASPHALT, WHITE, YELLOW]] = 25.0, 9.0, 110.0, 80.0  # by g
 OBJECT_INTENSITY = 40.0
 RANGE_NOISE_M = 0.02
 SPURIOUS_FRACTION = 0.005  # returns from dust, rain, multipath: at a random range along their ray
-
-
-@dataclass(frozen=True)
-class Obstacle:
-    """An upright box standing on the ground, in world coordinates."""
-
-    x: float
-    y: float
-    heading: float
-    length: float
-    width: float
-    height: float
 
 
 @dataclass(frozen=True)
@@ -60,7 +49,7 @@ def lidar_rays(spec: LidarSpec) -> Rays:
     return Rays(np.array(spec.translation), directions.reshape(-1, 3), laser, offset)
 
 
-def cast(rays: Rays, max_range: float, texture: GroundTexture, pose: np.ndarray, obstacles: list[Obstacle],
+def cast(rays: Rays, max_range: float, texture: GroundTexture, pose: np.ndarray, obstacles: list[Box],
          rng: np.random.Generator) -> Sweep:  # fmt: skip
     """The returns of one sweep with the ego at pose (x, y, heading) in the world."""
     d, o = rays.directions, rays.origin

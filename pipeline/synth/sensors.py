@@ -10,11 +10,11 @@ import numpy as np
 
 from pipeline.synth import av2_writer, nuscenes_writer
 from pipeline.synth.camera_render import VIEW_RANGE_M, CameraModel, Noise, camera_model, encode_jpeg, render
-from pipeline.synth.lidar import Obstacle, Rays, cast, lidar_rays
+from pipeline.synth.lidar import Rays, cast, lidar_rays
 from pipeline.synth.logs import LogPlan, frame_cuboids
 from pipeline.synth.rig import AV2_CAMERAS, NUSCENES_CAMERAS, ROOF_LIDAR
 from pipeline.synth.texture import ground_texture
-from pipeline.synth.world import World
+from pipeline.synth.world import Box, World
 
 POLE_SIZE = (0.3, 0.3, 5.0)  # length, width, height of a street light, m
 
@@ -41,7 +41,7 @@ def write_sensors(world: World, plan: LogPlan, av2_log_dir: Path, nuscenes_root:
     (av2_log_dir / "sensors" / "lidar").mkdir(parents=True, exist_ok=True)
     for channel in nuscenes_writer.channels(sensors=True):
         (nuscenes_root / "samples" / channel.name).mkdir(parents=True, exist_ok=True)
-    poles = [Obstacle(x, y, 0.0, *POLE_SIZE) for x, y in world.poles]
+    poles = [Box(x, y, 0.0, *POLE_SIZE) for x, y in world.poles]
     camera_channels = nuscenes_writer.camera_channels()
     for ns, pose, cuboids in zip(plan.frame_ns, poses, frame_cuboids(world, plan), strict=True):
         ns = int(ns)
@@ -51,7 +51,7 @@ def write_sensors(world: World, plan: LogPlan, av2_log_dir: Path, nuscenes_root:
         for model in av2_cameras:
             path = av2_log_dir / "sensors" / "cameras" / model.spec.name / f"{ns}.jpg"
             path.write_bytes(encode_jpeg(render(model, texture, pose, noise)))
-        cars = [Obstacle(c.x, c.y, c.heading, c.length, c.width, c.height) for c in cuboids]
+        cars = [Box(c.x, c.y, c.heading, c.length, c.width, c.height) for c in cuboids]
         near = [p for p in poles if np.hypot(p.x - pose[0], p.y - pose[1]) < ROOF_LIDAR.max_range]
         sweep = cast(rays, ROOF_LIDAR.max_range, texture, pose, cars + near, rng)
         av2_writer.write_sweep(av2_log_dir / "sensors" / "lidar" / f"{ns}.feather", sweep)

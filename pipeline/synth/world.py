@@ -33,7 +33,9 @@ SIDES = ("left", "right")
 
 
 @dataclass(frozen=True)
-class ParkedCar:
+class Box:
+    """An upright box standing on the ground, in world coordinates: a parked car, a pole."""
+
     x: float
     y: float
     heading: float
@@ -90,7 +92,7 @@ class World:
     lanes: dict[int, WorldLane]  # by AV2 lane segment id, ascending
     landmarks: Landmarks
     routes: list[Route]
-    parked_cars: list[ParkedCar]
+    parked_cars: list[Box]
     crosswalks: list[Crosswalk]
     poles: list[tuple[float, float]]  # street lights beside the roads (LiDAR clutter)
     canvas: tuple[float, float]  # the map covers [0, w] x [0, h]
@@ -264,7 +266,7 @@ def _crosswalk(road: Road) -> Crosswalk:
     return Crosswalk(*edges)
 
 
-def _parked_cars(rng: np.random.Generator, kerbs: list[tuple[Road, int]]) -> list[ParkedCar]:
+def _parked_cars(rng: np.random.Generator, kerbs: list[tuple[Road, int]]) -> list[Box]:
     """Three cars per kerb, at distinct 8 m slots along the road, beside its outermost lane."""
     cars = []
     for road, side in kerbs:
@@ -277,7 +279,7 @@ def _parked_cars(rng: np.random.Generator, kerbs: list[tuple[Road, int]]) -> lis
             x, y = x - left * math.sin(heading), y + left * math.cos(heading)
             heading += math.pi if side > 0 else 0.0  # parked in the driving direction of that side
             length, width, height = rng.uniform(4.3, 4.9), rng.uniform(1.8, 1.95), rng.uniform(1.45, 1.7)
-            cars.append(ParkedCar(*(float(v) for v in (x, y, heading, length, width, height))))
+            cars.append(Box(*(float(v) for v in (x, y, heading, length, width, height))))
     return cars
 
 

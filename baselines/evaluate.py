@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import torch
 from torch.utils.data import DataLoader
@@ -23,8 +22,9 @@ from baselines.config import Config
 from baselines.data import PreparedDataset, collate
 from baselines.lanegap import LaneGAP, select_paths
 from baselines.train import amp_settings
-from benchmark.metrics import score_graphs
+from benchmark.metrics import MetricParams
 from benchmark.path2graph import path2graph
+from benchmark.score import default_range, graphs_from_table, read_graph_table, score_pairs
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
 
@@ -95,16 +95,11 @@ def evaluate(
     table = pa.Table.from_pylist(rows, io.SCHEMAS["graphs"])
     pq.write_table(table, run_dir / "predictions.parquet")
 
-    ids = pa.array(sorted(predictions))
-    truth = io.read_table(Path(data_dir), "graphs", filter=pc.field("frame_id").isin(ids)).to_pylist()
-    ground_truth = {
-        r["frame_id"]: LaneGraph(
-            np.array(r["x"], np.float32), np.array(r["y"], np.float32),
-            np.array(r["src"], np.int32), np.array(r["dst"], np.int32),
-        )
-        for r in truth
-    }  # fmt: skip
-    scores = score_graphs((predictions[frame_id], ground_truth[frame_id]) for frame_id in sorted(predictions))
+    # `cli score` scores every frame of the ground truth; here only the frames of this split.
+    ground_truth = graphs_from_table(read_graph_table(Path(data_dir)), Path(data_dir))
+    pairs = [(predictions[frame_id], ground_truth[frame_id]) for frame_id in sorted(predictions)]
+    scores = score_pairs(pairs, MetricParams(bev_range=default_range(Path(data_dir))))
+    scores.update(pred=str(run_dir / "predictions.parquet"), gt=str(data_dir), frames_predicted=len(pairs))
     timed = len(dataset) - warmup_frames
     metrics = {
         **scores,

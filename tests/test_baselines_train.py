@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.feather as feather
+import pyarrow.parquet as pq
 import pytest
 import torch
 import torch.multiprocessing as mp
@@ -77,9 +78,18 @@ def write_toy_dataset(root: Path, frames: int = 6, split: str = "train") -> Path
              "n_vertices": 14, "n_edges": 12, "n_paths": 2, "n_pieces": 2, "n_junctions": 0,
              "path_cap_hit": False}
         )  # fmt: skip
+    graph_rows = []
+    for frame in frame_rows:
+        lines = [r for r in path_rows if r["frame_id"] == frame["frame_id"]]
+        src = [7 * i + j for i in range(len(lines)) for j in range(6)]
+        graph_rows.append(
+            {"frame_id": frame["frame_id"], "x": sum((r["x"] for r in lines), []),
+             "y": sum((r["y"] for r in lines), []), "src": src, "dst": [v + 1 for v in src]}
+        )  # fmt: skip
     tables = {
         "frames": pa.Table.from_pylist(frame_rows, io.SCHEMAS["frames"]),
         "paths": pa.Table.from_pylist(path_rows, io.SCHEMAS["paths"]),
+        "graphs": pa.Table.from_pylist(graph_rows, io.SCHEMAS["graphs"]),
     }
     io.write_shard(out, f"{split}__toy", tables)
     (out / "manifest.json").write_text(json.dumps({"root": str(raw)}))
@@ -179,3 +189,28 @@ def test_ddp_two_processes_on_cpu(tmp_path):
     checkpoint = torch.load(out / "checkpoint.pt", weights_only=False)
     assert checkpoint["epoch"] == 1 and len(checkpoint["rng"]) == 2
     assert len((out / "log.jsonl").read_text().splitlines()) == 2  # rank 0 writes
+
+
+def test_cli_train_then_eval(tmp_path):
+    from typer.testing import CliRunner
+
+    from cli import app
+
+    data = write_toy_dataset(tmp_path, frames=4)
+    run = tmp_path / "run"
+    args = ["train", "--data", str(data), "--out", str(run), "--preset", "tiny", "--modality", "lidar",
+            "--epochs", "1", "--batch-size", "2", "--path-points", "10", "--no-aux-seg",
+            "--set", "train.threads=1", "--set", "train.val_split=train"]  # fmt: skip
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    config = Config.load(run / "config.json")
+    assert config.preset == "tiny" and config.decoder.path_points == 10 and not config.decoder.aux_seg
+    result = CliRunner().invoke(app, ["eval", "--run", str(run), "--device", "cpu"])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["frames"] == 4 and metrics["split"] == "train" and metrics["device"] == "cpu"
+    assert 0 <= metrics["directed"]["topo"]["f1"] <= 1 and metrics["params"] > 0
+    assert metrics["fps_net"] >= metrics["fps"] > 0
+    assert metrics["config"]["encoder"]["modality"] == "lidar"
+    predictions = pq.read_table(run / "predictions.parquet")
+    assert predictions.schema.equals(io.SCHEMAS["graphs"]) and predictions.num_rows == 4

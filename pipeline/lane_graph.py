@@ -138,13 +138,36 @@ def crop_lane_graph(lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range) -> 
     a, b = end_vertex[a[ok]], start_vertex[b[ok]]
     ok = (a >= 0) & (b >= 0)
     label = merge_labels(n, a[ok], b[ok])
+    x, y = vertex_positions(label, points)
+    label = merge_coincident(label, x, y)
+    x, y = vertex_positions(label, points)
+
+    edges = np.stack([label[src], label[dst]], axis=1)
+    edges = np.unique(edges[edges[:, 0] != edges[:, 1]], axis=0)
+    return LaneGraph(x, y, edges[:, 0].astype(np.int32), edges[:, 1].astype(np.int32))
+
+
+def vertex_positions(label: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """float32 (x, y) of each vertex: the mean of the points merged into it."""
     n_vertices = label.max() + 1
     size = np.bincount(label, minlength=n_vertices)
     x = np.bincount(label, points[:, 0], n_vertices) / size
     y = np.bincount(label, points[:, 1], n_vertices) / size
+    return x.astype(np.float32), y.astype(np.float32)
 
-    edges = np.stack([label[src], label[dst]], axis=1)
-    edges = np.unique(edges[edges[:, 0] != edges[:, 1]], axis=0)
-    return LaneGraph(
-        x.astype(np.float32), y.astype(np.float32), edges[:, 0].astype(np.int32), edges[:, 1].astype(np.int32)
-    )
+
+def merge_coincident(label: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Point labels with vertices at identical stored coordinates made one, in first-appearance order.
+
+    A graph draws lanes, so two vertices at one point are one place: lanes that overlap exactly (a
+    fork whose branches leave along the same arc) share their common part instead of doubling it.
+    """
+    order = np.lexsort((y, x))
+    same = (x[order][1:] == x[order][:-1]) & (y[order][1:] == y[order][:-1])
+    if not same.any():
+        return label
+    group = np.concatenate([[0], np.cumsum(~same)])
+    first = np.minimum.reduceat(order, np.flatnonzero(np.concatenate([[True], ~same])))
+    representative = np.empty(len(x), np.int64)
+    representative[order] = first[group]
+    return np.unique(representative, return_inverse=True)[1][label]

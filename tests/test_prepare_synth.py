@@ -194,3 +194,11 @@ def test_av2_and_nuscenes_give_the_same_graphs(synth_prepared):
                 # up to ~7 cm from the nuScenes arcs (discretised at 0.5 m)
                 assert distance.max() < 0.1, (t, a, distance.max())
                 assert np.median(distance) < 0.02
+
+
+def test_no_two_vertices_share_a_point(synth_prepared):
+    """Exactly overlapping lanes (nuScenes fork branches leaving along one arc) share vertices."""
+    for out in synth_prepared.values():
+        for g in read_table(out, "graphs").to_pylist():
+            xy = np.stack([g["x"], g["y"]], 1)
+            assert len(np.unique(xy, axis=0)) == len(xy), g["frame_id"]

@@ -70,6 +70,30 @@ def split_points(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> np.ndarray:
     return a[seg] + (b[seg] - a[seg]) * (i / k[seg])[:, None]
 
 
+@numba.njit(cache=True)
+def identical_points(xy):
+    """(vertex of each point, number of vertices): points at identical coordinates are one vertex,
+    numbered 0.. in the order of their first appearance."""
+    order = np.argsort(xy[:, 0])
+    same = np.arange(len(xy))  # the first point in the sort with the same coordinates
+    for s in range(len(order)):  # equal x sit together in the sort; compare y among them
+        i = order[s]
+        t = s - 1
+        while t >= 0 and xy[order[t], 0] == xy[i, 0]:
+            if xy[order[t], 1] == xy[i, 1]:
+                same[i] = same[order[t]]
+                break
+            t -= 1
+    vertex = np.full(len(xy), -1, np.int64)
+    n = 0
+    for i in range(len(xy)):
+        if vertex[same[i]] < 0:
+            vertex[same[i]] = n
+            n += 1
+        vertex[i] = vertex[same[i]]
+    return vertex, n
+
+
 def unique_edges(graph: LaneGraph, directed: bool) -> np.ndarray:
     """(E, 2) int64 edges without self-loops or repeats, sorted by (src, dst).
 
@@ -91,7 +115,7 @@ def unique_edges(graph: LaneGraph, directed: bool) -> np.ndarray:
 class Dense:
     """A densified graph in one mode, as flat arrays for the kernels."""
 
-    xy: np.ndarray  # (n, 2) float64: the original vertices first, then each edge's inner points
+    xy: np.ndarray  # (n, 2) float64
     indptr: np.ndarray  # (n + 1,) CSR of the edges that Reach follows (successors, or both ways)
     nbr: np.ndarray
     weight: np.ndarray
@@ -118,35 +142,37 @@ def _chains(xy: np.ndarray, edges: np.ndarray, step: float):
     return inner, sub_src, sub_dst, (length / k)[e]
 
 
-def _dense(xy, inner, sub_src, sub_dst, sub_w, junction, directed: bool) -> Dense:
+def _dense(xy: np.ndarray, edges: np.ndarray, step: float, directed: bool) -> Dense:
+    inner, sub_src, sub_dst, sub_w = _chains(xy, edges, step)
+    points = np.concatenate([xy, inner])
+    vertex, n = identical_points(points)
+    first = np.full(n, len(points))
+    np.minimum.at(first, vertex, np.arange(len(points)))
+    src, dst = vertex[sub_src], vertex[sub_dst]
     if not directed:
-        sub_src, sub_dst = np.concatenate([sub_src, sub_dst]), np.concatenate([sub_dst, sub_src])
-        sub_w = np.concatenate([sub_w, sub_w])
-    n = len(xy) + len(inner)
-    order = np.argsort(sub_src, kind="stable")
-    return Dense(
-        xy=np.concatenate([xy, inner]),
-        indptr=np.concatenate([[0], np.cumsum(np.bincount(sub_src, minlength=n))]).astype(np.int64),
-        nbr=sub_dst[order].astype(np.int64),
-        weight=sub_w[order],
-        junction=np.concatenate([junction, np.zeros(len(inner), bool)]),
-    )
+        src, dst, sub_w = (
+            np.concatenate([src, dst]),
+            np.concatenate([dst, src]),
+            np.concatenate([sub_w, sub_w]),
+        )
+    if n < len(points):  # identical points made one: one edge per (src, dst), the shortest, no loops
+        order = np.lexsort((sub_w, dst, src))
+        src, dst, sub_w = src[order], dst[order], sub_w[order]
+        keep = (src != dst) & np.append(True, (src[1:] != src[:-1]) | (dst[1:] != dst[:-1]))
+        src, dst, sub_w = src[keep], dst[keep], sub_w[keep]
+    indptr, order = _rows(src, n)
+    out_degree, in_degree = np.diff(indptr), np.bincount(dst, minlength=n)
+    junction = (in_degree >= 2) | (out_degree >= 2) if directed else out_degree >= 3
+    return Dense(xy=points[first], indptr=indptr, nbr=dst[order], weight=sub_w[order], junction=junction)
 
 
 def densify(graph: LaneGraph, step: float) -> dict[str, Dense]:
-    """{"directed": ..., "undirected": ...}. Junctions: in- or out-degree >= 2 (directed), >= 3
-    distinct neighbours (undirected); only original vertices can be junctions."""
-    xy = np.stack([np.asarray(graph.x, np.float64), np.asarray(graph.y, np.float64)], axis=1)
-    n = len(xy)
+    """{"directed": ..., "undirected": ...}: every edge split into equal parts, then points at
+    identical coordinates made one vertex. Junctions: in- or out-degree >= 2 (directed), >= 3
+    distinct neighbours (undirected)."""
+    xy = np.stack([np.asarray(graph.x, np.float64), np.asarray(graph.y, np.float64)], axis=1) + 0.0  # no -0.0
     directed, undirected = unique_edges(graph, True), unique_edges(graph, False)
-    chains = _chains(xy, directed, step)
-    in_degree, out_degree = np.bincount(directed[:, 1], minlength=n), np.bincount(directed[:, 0], minlength=n)
-    junction = (in_degree >= 2) | (out_degree >= 2)
-    out = {"directed": _dense(xy, *chains, junction, directed=True)}
-    if len(undirected) < len(directed):  # u -> v and v -> u: the undirected graph densifies fewer edges
-        chains = _chains(xy, undirected, step)
-    junction = np.bincount(undirected.ravel(), minlength=n) >= 3
-    out["undirected"] = _dense(xy, *chains, junction, directed=False)
+    out = {"directed": _dense(xy, directed, step, True), "undirected": _dense(xy, undirected, step, False)}
     return out
 
 

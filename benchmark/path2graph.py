@@ -21,7 +21,7 @@ from collections.abc import Sequence
 import numba
 import numpy as np
 
-from benchmark.metrics import EPS, near_pairs, split_counts, split_points
+from benchmark.metrics import EPS, identical_points, near_pairs, split_counts, split_points
 from pipeline.lane_graph import LaneGraph
 
 
@@ -60,29 +60,6 @@ def _find(parent, i):
         parent[i] = parent[parent[i]]
         i = parent[i]
     return i
-
-
-@numba.njit(cache=True)
-def _identical(xy):
-    """Step 2: the vertex of each point, numbered 0.. in the order of the points' first appearance."""
-    order = np.argsort(xy[:, 0])
-    same = np.arange(len(xy))  # a point with the same coordinates earlier in the sort, or itself
-    for s in range(len(order)):  # equal x sit together in the sort; compare y among them
-        i = order[s]
-        t = s - 1
-        while t >= 0 and xy[order[t], 0] == xy[i, 0]:
-            if xy[order[t], 1] == xy[i, 1]:
-                same[i] = same[order[t]]
-                break
-            t -= 1
-    vertex = np.full(len(xy), -1, np.int64)
-    n = 0
-    for i in range(len(xy)):
-        if vertex[same[i]] < 0:
-            vertex[same[i]] = n
-            n += 1
-        vertex[i] = vertex[same[i]]
-    return vertex, n
 
 
 @numba.njit(cache=True)
@@ -142,7 +119,7 @@ def path2graph(paths: Sequence[np.ndarray], step: float = 0.15, merge_radius: fl
         return LaneGraph.empty()
     chain_next = np.arange(1, len(xy) + 1)
     chain_next[np.append(path_of[1:] != path_of[:-1], True)] = -1
-    vertex, n = _identical(xy)
+    vertex, n = identical_points(xy)
     cluster = _cluster(xy, vertex, n, chain_next, merge_radius, EPS)
 
     # one output vertex per cluster, numbered by first appearance, at the mean of its step-2 vertices

@@ -5,8 +5,7 @@
 2. Each piece becomes a chain of its points.
 3. A link i -> j joins the end of i to the start of j. The endpoints that links join, directly or
    through other links (the end of i with the starts of all its successors, and so on), become one
-   vertex at their mean: the joint moves to the mean, as STSU and CGNet do. Endpoints at identical
-   coordinates are one vertex as well.
+   vertex at their mean: the joint moves to the mean, as STSU and CGNet do.
 4. Self-loops and repeated edges are dropped.
 On ground-truth pieces, linked endpoints are the same vertex, so the graph comes back exactly.
 """
@@ -51,13 +50,9 @@ def piece2graph(
     new_index = np.full(len(pieces), -1)
     new_index[kept] = np.arange(len(kept))
 
-    # endpoints joined by links or by identical coordinates become one vertex (connected components)
+    # endpoints joined by links, directly or through others, become one vertex (connected components)
     start, end = offset[:-1], offset[1:] - 1
-    joined = [np.stack([end[new_index[links[keep_link, 0]]], start[new_index[links[keep_link, 1]]]], axis=1)]
-    ends = np.concatenate([start, end])
-    _, first_same, same = np.unique(points[ends], axis=0, return_index=True, return_inverse=True)
-    joined.append(np.stack([ends, ends[first_same[same.ravel()]]], axis=1))
-    pairs = np.concatenate(joined)
+    pairs = np.stack([end[new_index[links[keep_link, 0]]], start[new_index[links[keep_link, 1]]]], axis=1)
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
     _, label = connected_components(graph, directed=False)
 

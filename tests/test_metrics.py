@@ -30,35 +30,43 @@ from pipeline.lane_graph import LaneGraph
 
 def ref_dense(graph: LaneGraph, step: float, directed: bool):
     """(points, networkx graph with weights, junctions) of the densified graph."""
-    points = [(float(x), float(y)) for x, y in zip(graph.x, graph.y)]
-    n = len(points)
+    xy = [(x + 0.0, y + 0.0) for x, y in zip(graph.x.tolist(), graph.y.tolist())]
     edges = sorted({(int(s), int(d)) for s, d in zip(graph.src, graph.dst) if s != d})
     if not directed:  # one undirected edge per pair, in the orientation that comes first
         seen: set = set()
-        edges = [
-            (u, v)
-            for u, v in edges
-            if not ((min(u, v), max(u, v)) in seen or seen.add((min(u, v), max(u, v))))
-        ]
-    g = nx.DiGraph() if directed else nx.Graph()
-    g.add_nodes_from(range(n))
+        kept = []
+        for u, v in edges:
+            if (min(u, v), max(u, v)) not in seen:
+                seen.add((min(u, v), max(u, v)))
+                kept.append((u, v))
+        edges = kept
+    chains = [[xy[u]] for u in range(len(xy))]  # lone vertices are points too
     for u, v in edges:
-        (ax, ay), (bx, by) = points[u], points[v]
+        (ax, ay), (bx, by) = xy[u], xy[v]
         length = math.sqrt((bx - ax) * (bx - ax) + (by - ay) * (by - ay))
         k = max(1, math.ceil(length / step - EPS))
-        chain = [u]
-        for i in range(1, k):
-            points.append((ax + (bx - ax) * (i / k), ay + (by - ay) * (i / k)))
-            g.add_node(len(points) - 1)
-            chain.append(len(points) - 1)
-        chain.append(v)
-        for s, d in zip(chain, chain[1:]):
-            g.add_edge(s, d, weight=length / k)
+        inner = [(ax + (bx - ax) * (i / k), ay + (by - ay) * (i / k)) for i in range(1, k)]
+        chains.append([xy[u], *inner, xy[v], length / k])
+    # points at identical coordinates are one vertex, numbered by first appearance
+    vertex: dict = {}
+    for point in xy:
+        vertex.setdefault(point, len(vertex))
+    for chain in chains[len(xy) :]:
+        for point in chain[1:-2]:
+            vertex.setdefault(point, len(vertex))
+    g = nx.DiGraph() if directed else nx.Graph()
+    g.add_nodes_from(range(len(vertex)))
+    for chain in chains[len(xy) :]:
+        weight = chain[-1]
+        for a, b in zip(chain[:-2], chain[1:-1]):
+            s, d = vertex[a], vertex[b]
+            if s != d and (not g.has_edge(s, d) or g[s][d]["weight"] > weight):
+                g.add_edge(s, d, weight=weight)
     if directed:
-        junctions = {v for v in range(n) if g.in_degree(v) >= 2 or g.out_degree(v) >= 2}
+        junctions = {v for v in g if g.in_degree(v) >= 2 or g.out_degree(v) >= 2}
     else:
-        junctions = {v for v in range(n) if g.degree(v) >= 3}
-    return points, g, junctions
+        junctions = {v for v in g if g.degree(v) >= 3}
+    return list(vertex), g, junctions
 
 
 def ref_candidates(pa, pb, sa, sb, radius):

@@ -1,0 +1,162 @@
+"""Path2Graph, Piece2Graph, Pixel2Graph, and the ground truth's round trips through them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmark.metrics import MetricParams, densify, score_graphs
+from benchmark.path2graph import path2graph
+from benchmark.piece2graph import piece2graph
+from benchmark.pixel2graph import RasterGrid, pixel2graph
+from benchmark.roundtrip import roundtrip
+from pipeline.geometry import Range
+from pipeline.lane_graph import LaneGraph
+from pipeline.raster import Grid, rasterize
+
+TRUNK = np.array([(0, 0), (0, 3)], np.float32)
+FORK = LaneGraph(
+    np.array([0, 0, 0, 2.25], np.float32),
+    np.array([0, 3, 6, 6], np.float32),
+    np.array([0, 1, 1], np.int32),
+    np.array([1, 2, 3], np.int32),
+)  # 3 m trunk, 3 m straight on, 3.75 m to the right: 66 densified vertices
+
+
+def degrees(g: LaneGraph) -> tuple[np.ndarray, np.ndarray]:
+    return np.bincount(g.src, minlength=len(g.x)), np.bincount(g.dst, minlength=len(g.x))
+
+
+def same_points(a: np.ndarray, b: np.ndarray) -> bool:
+    return np.array_equal(np.unique(a, axis=0), np.unique(b, axis=0))
+
+
+# ---------------------------------------------------------------------------------------------------
+# Path2Graph
+
+
+def test_paths_sharing_a_trunk_rebuild_the_fork_exactly():
+    paths = [np.array([(0, 0), (0, 3), (0, 6)]), np.array([(0, 0), (0, 3), (2.25, 6)])]
+    for merge_radius in (0.0, 0.15):  # shared vertices are identical: nothing else to merge
+        g = path2graph(paths, merge_radius=merge_radius)
+        assert len(g.x) == 66 and len(g.src) == 65
+        assert same_points(np.stack([g.x, g.y], 1), densify(FORK, 0.15)["directed"].xy)
+        out_degree, _ = degrees(g)
+        assert np.flatnonzero(out_degree == 2).tolist() == [int(np.flatnonzero((g.x == 0) & (g.y == 3))[0])]
+
+
+def test_near_duplicate_paths_merge_into_one_chain_at_their_mean():
+    g = path2graph([TRUNK, TRUNK + [0.05, 0]])
+    assert len(g.x) == 21 and len(g.src) == 20
+    np.testing.assert_allclose(g.x, 0.025)
+    out_degree, in_degree = degrees(g)
+    assert out_degree.max() == in_degree.max() == 1
+    # with merge_radius 0 the two stay apart
+    assert len(path2graph([TRUNK, TRUNK + [0.05, 0]], merge_radius=0.0).x) == 42
+
+
+def test_noisy_fork_merges_its_trunk_and_splits_where_branches_part():
+    paths = [np.array([(0, 0), (0, 3), (0, 6)]), np.array([(0.04, 0), (0.04, 3), (2.3, 6)])]
+    g = path2graph(paths)
+    out_degree, in_degree = degrees(g)
+    assert (out_degree == 2).sum() == 1 and in_degree.max() == 1
+    fork = np.flatnonzero(out_degree == 2)[0]
+    assert 2.9 < g.y[fork] < 3.3
+
+
+def test_a_path_never_merges_with_itself_and_no_self_loops():
+    u_turn = np.array([(0, 0), (0, 3), (0.1, 3), (0.1, 0)])  # its two sides 0.1 m apart
+    g = path2graph([u_turn])
+    d = np.diff(u_turn, axis=0)
+    assert len(g.x) == 1 + sum(int(np.ceil(np.hypot(*s) / 0.15 - 1e-9)) for s in d)
+    assert np.all(g.src != g.dst)
+    assert len(path2graph([]).x) == 0
+    one = path2graph([np.array([(1.0, 2.0)])])
+    assert (len(one.x), len(one.src)) == (1, 0)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Piece2Graph
+
+
+def test_linked_pieces_join_at_the_mean_of_their_ends():
+    pieces = [np.array([(0, 0), (0, 3)]), np.array([(0.1, 3), (0, 6)]), np.array([(-0.1, 3), (2, 6)])]
+    g = piece2graph(pieces, np.array([(0, 1), (0, 2)]))
+    assert len(g.x) == 4 and len(g.src) == 3
+    joint = np.flatnonzero(np.bincount(g.src, minlength=4) == 2)[0]
+    assert (g.x[joint], g.y[joint]) == pytest.approx((0, 3))
+
+
+def test_piece_and_link_thresholds():
+    pieces = [np.array([(0, 0), (0, 3)]), np.array([(0.1, 3), (0, 6)]), np.array([(-0.1, 3), (2, 6)])]
+    links = np.array([(0, 1), (0, 2)])
+    low_link = piece2graph(pieces, links, link_scores=np.array([0.9, 0.2]), link_threshold=0.5)
+    assert len(low_link.x) == 5  # piece 2 keeps its own start
+    low_piece = piece2graph(pieces, links, piece_scores=np.array([1.0, 1.0, 0.1]), piece_threshold=0.5)
+    assert (len(low_piece.x), len(low_piece.src)) == (3, 2)
+    assert len(piece2graph(pieces, links, piece_scores=np.zeros(3)).x) == 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# Pixel2Graph
+
+
+def raster(graph: LaneGraph) -> tuple[np.ndarray, np.ndarray]:
+    return rasterize(graph, Grid(Range()))
+
+
+def test_a_drawn_lane_comes_back_pointing_the_way_of_the_direction_map():
+    lane = LaneGraph(
+        np.array([0, 0], np.float32), np.array([-10, 10], np.float32), np.array([0]), np.array([1])
+    )
+    mask, direction = raster(lane)
+    g = pixel2graph(mask, direction, RasterGrid())
+    dy = g.y[g.dst] - g.y[g.src]
+    assert len(g.src) >= 1 and np.all(dy > 0)
+    assert g.y.min() == pytest.approx(-10, abs=0.5) and g.y.max() == pytest.approx(10, abs=0.5)
+    np.testing.assert_allclose(g.x, 0, atol=0.3)  # the thinning may end a pixel or two aside
+    # the same mask with the direction map turned around
+    flipped = np.where(direction > 0, (direction - 1 + 18) % 36 + 1, 0).astype(np.uint8)
+    back = pixel2graph(mask, flipped, RasterGrid())
+    assert np.all(back.y[back.dst] < back.y[back.src])
+
+
+def test_a_drawn_fork_comes_back_as_a_fork():
+    mask, direction = raster(FORK)
+    g = pixel2graph(mask, direction, RasterGrid())
+    out_degree, in_degree = degrees(g)
+    assert (out_degree == 2).sum() == 1 and in_degree.max() == 1
+    fork = np.flatnonzero(out_degree == 2)[0]
+    assert np.hypot(g.x[fork], g.y[fork] - 3) < 1.5  # where the two 0.75 m wide strokes part
+    result = score_graphs([(g, FORK)], MetricParams())
+    assert result["directed"]["topo"]["f1"] > 0.8
+    assert len(pixel2graph(np.zeros_like(mask), direction, RasterGrid()).x) == 0
+
+
+# ---------------------------------------------------------------------------------------------------
+# Round trips of the prepared ground truth (Tab. 10)
+
+
+def perfect(result: dict) -> bool:
+    values = [v for mode in ("directed", "undirected") for m in result[mode].values() for v in m.values()]
+    return values == [1.0] * 12 and result["miou"] == 1.0
+
+
+def test_round_trips_on_real_av2(prepared_av2, tmp_path):
+    """Every 4th of the 313 frames, to keep the test short (all of them: benchmark/bench_metrics.py)."""
+    assert perfect(roundtrip(prepared_av2, "path", tmp_path / "path.json", frame_stride=4))
+    assert perfect(roundtrip(prepared_av2, "piece", frame_stride=4))
+    pixel = roundtrip(prepared_av2, "pixel", frame_stride=4)
+    assert 0.5 < pixel["directed"]["topo"]["f1"] < 1 and 0.5 < pixel["miou"] < 1
+    assert (tmp_path / "path.json").is_file()
+
+
+def test_round_trips_on_synthetic_data(synth_prepared):
+    for data in synth_prepared.values():  # AV2 and nuScenes formats, every 2nd frame
+        assert perfect(roundtrip(data, "path", frame_stride=2))
+        assert perfect(roundtrip(data, "piece", frame_stride=2))
+
+
+def test_roundtrip_rejects_an_unknown_representation(prepared_av2):
+    with pytest.raises(ValueError, match="via"):
+        roundtrip(prepared_av2, "polygon")

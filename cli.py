@@ -148,5 +148,55 @@ def eval_(
     Console().print(table)
 
 
+@app.command()
+def score(
+    pred: Path = typer.Option(..., help="Predictions: a graph-table Parquet file (or a folder of shards)"),
+    gt: Path = typer.Option(..., help="Ground truth: a prepared dataset or a graph-table file"),
+    out: Path = typer.Option(None, help="Also write the JSON to this file"),
+    step: float = typer.Option(0.15, help="Densification step, metres"),
+    match_radius: float = typer.Option(0.45, help="Vertices closer than this may be paired, metres"),
+    reach_radius: float = typer.Option(7.5, help="Reach: path distance below this, metres"),
+    matching: str = typer.Option("greedy", help="greedy (by distance) or optimal (maximum cardinality)"),
+    range_: str = typer.Option(None, "--range", help="mIoU grid WIDTHxLENGTH (default: the dataset's)"),
+    workers: int = typer.Option(1, help="Worker processes (0: one per core)"),
+) -> None:
+    """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md)."""
+    import json
+
+    from benchmark.score import score as run_score
+
+    params = dict(step=step, match_radius=match_radius, reach_radius=reach_radius, matching=matching)
+    if range_:
+        params["bev_range"] = range_
+    try:
+        result = run_score(pred, gt, out, workers=workers, **params)
+    except (ValueError, FileNotFoundError) as error:
+        typer.secho(f"error: {error}", fg="red", err=True)
+        raise typer.Exit(1) from error
+    typer.echo(json.dumps(result, indent=2))
+
+
+@app.command()
+def roundtrip(
+    data: Path = typer.Option(..., help="Prepared dataset (cli prepare --out)"),
+    via: str = typer.Option(..., help="path (Path2Graph), piece (Piece2Graph) or pixel (Pixel2Graph)"),
+    out: Path = typer.Option(None, help="Also write the JSON to this file"),
+    merge_radius: float = typer.Option(0.0, help="Path2Graph's near merge in metres (0: identical points)"),
+    frame_stride: int = typer.Option(1, help="Every K-th frame"),
+    workers: int = typer.Option(1, help="Worker processes (0: one per core)"),
+) -> None:
+    """The ground truth through a representation and back, scored against itself (Tab. 10)."""
+    import json
+
+    from benchmark.roundtrip import roundtrip as run_roundtrip
+
+    try:
+        result = run_roundtrip(data, via, out, merge_radius, workers, frame_stride)
+    except (ValueError, FileNotFoundError) as error:
+        typer.secho(f"error: {error}", fg="red", err=True)
+        raise typer.Exit(1) from error
+    typer.echo(json.dumps(result, indent=2))
+
+
 if __name__ == "__main__":
     app()

@@ -123,7 +123,9 @@ def _score_chunk(chunk: list[tuple[LaneGraph, LaneGraph]], params: MetricParams)
 
 
 def score_pairs(pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1) -> dict:
-    """The result dict for (pred, gt) graphs, one pair per frame, in `workers` processes."""
+    """The result dict for (pred, gt) graphs, one pair per frame, in `workers` processes (0: one per
+    core)."""
+    workers = workers if workers > 0 else os.cpu_count() or 1
     totals = Totals(params)
     if workers <= 1 or len(pairs) < 2 * workers:
         totals.add(_score_chunk(pairs, params))
@@ -164,7 +166,7 @@ def score(pred_path: Path, gt_path: Path, out: Path | None = None, workers: int 
     if unknown:
         raise GraphTableError(f"{pred_path}: frame {unknown[0]} is not in the ground truth {gt_path}")
     pairs = [(pred.get(f, LaneGraph.empty()), gt[f]) for f in sorted(gt)]
-    result = score_pairs(pairs, metric_params, workers or os.cpu_count() or 1)
+    result = score_pairs(pairs, metric_params, workers)
     result.update(pred=str(pred_path), gt=str(gt_path), frames_predicted=len(pred))
     write_result(result, out)
     return result

@@ -171,7 +171,7 @@ def tiny() -> Config:
             backbone_frozen_stages=0,
             backbone_norm_eval=False,
             feature_stride=8,
-            camera_heights=(0.0,),
+            camera_heights=(0.0,),  # the ground in AV2's frame; in nuScenes' LIDAR_TOP frame: -1.84
             kernel_size=(3, 3),
             camera_heads=4,
             max_views=2,
@@ -179,10 +179,11 @@ def tiny() -> Config:
             pillar_subdivision=1,
             lidar_blocks=1,
         ),
-        decoder=DecoderConfig(num_paths=16, path_points=20, layers=3, heads=4, ffn_channels=128, dropout=0.0),
+        decoder=DecoderConfig(num_paths=32, path_points=20, layers=3, heads=4, ffn_channels=128, dropout=0.0),
         data=DataConfig(
-            image_scale_nuscenes=0.2,
-            image_scale_av2=0.1,
+            # The synthetic images are already 1/4 (nuScenes) and 1/8 (AV2) of the real sizes.
+            image_scale_nuscenes=0.5,
+            image_scale_av2=0.5,
             max_points=20_000,
             num_workers=0,
             cache_samples=True,

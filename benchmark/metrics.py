@@ -54,27 +54,14 @@ class MetricParams:
 # Step 1: densify
 
 
-def split_counts(length: np.ndarray, step: float) -> np.ndarray:
-    """k = max(1, ceil(L / step)) parts per segment (one at most EPS over a multiple is not split)."""
-    return np.maximum(1, np.ceil(length / step - EPS)).astype(np.int64)
-
-
-def split_points(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """The k - 1 inner points a + (b - a) * (i / k) of each segment a -> b, segment after segment.
-
-    Path2Graph uses this same function, so that its chain points and the densified ground truth are
-    the same floats wherever they share a segment.
-    """
-    seg = np.repeat(np.arange(len(k)), k - 1)
-    i = np.arange(len(seg)) - np.repeat(np.cumsum(k - 1) - (k - 1), k - 1) + 1
-    return a[seg] + (b[seg] - a[seg]) * (i / k[seg])[:, None]
+def identical_points(xy: np.ndarray) -> tuple[np.ndarray, int]:
+    """(vertex of each point, number of vertices): points at identical coordinates are one vertex,
+    numbered 0.. in the order of their first appearance."""
+    return _identical_points(xy, np.argsort(xy[:, 0]))  # numpy's sort is the faster one
 
 
 @numba.njit(cache=True)
-def identical_points(xy):
-    """(vertex of each point, number of vertices): points at identical coordinates are one vertex,
-    numbered 0.. in the order of their first appearance."""
-    order = np.argsort(xy[:, 0])
+def _identical_points(xy, order):
     same = np.arange(len(xy))  # the first point in the sort with the same coordinates
     for s in range(len(order)):  # equal x sit together in the sort; compare y among them
         i = order[s]
@@ -94,21 +81,30 @@ def identical_points(xy):
     return vertex, n
 
 
+@numba.njit(cache=True)
+def _unique_edges(src, dst, n, directed):
+    keep = np.flatnonzero(src != dst)
+    key = src[keep] * n + dst[keep]
+    key = np.unique(key)  # sorted by (src, dst)
+    if directed:
+        return key // n, key % n
+    # undirected: the first of u -> v and v -> u in that order stands for both
+    lo, hi = np.minimum(key // n, key % n), np.maximum(key // n, key % n)
+    order = np.argsort(lo * n + hi, kind="mergesort")
+    first = np.ones(len(key), np.bool_)
+    for i in range(1, len(order)):
+        first[order[i]] = lo[order[i]] != lo[order[i - 1]] or hi[order[i]] != hi[order[i - 1]]
+    return key[first] // n, key[first] % n
+
+
 def unique_edges(graph: LaneGraph, directed: bool) -> np.ndarray:
     """(E, 2) int64 edges without self-loops or repeats, sorted by (src, dst).
 
     Undirected: u -> v and v -> u are one edge, kept in the orientation that comes first in that
     order, so that it densifies into the same points as in directed mode.
     """
-    n = len(graph.x)
-    edges = np.stack([np.asarray(graph.src, np.int64), np.asarray(graph.dst, np.int64)], axis=1)
-    key = np.unique(edges[:, 0] * n + edges[:, 1])
-    edges = np.stack([key // max(n, 1), key % max(n, 1)], axis=1)
-    edges = edges[edges[:, 0] != edges[:, 1]]
-    if not directed and len(edges):
-        _, first = np.unique(edges.min(axis=1) * n + edges.max(axis=1), return_index=True)
-        edges = edges[np.sort(first)]
-    return edges
+    src, dst = np.asarray(graph.src, np.int64), np.asarray(graph.dst, np.int64)
+    return np.stack(_unique_edges(src, dst, max(len(graph.x), 1), directed), axis=1)
 
 
 @dataclass
@@ -126,44 +122,74 @@ class Dense:
         return len(self.xy)
 
 
-def _chains(xy: np.ndarray, edges: np.ndarray, step: float):
-    """Inner points and sub-edges (src, dst, length) of the edges split into equal parts."""
-    src, dst = edges[:, 0], edges[:, 1]
-    d = xy[dst] - xy[src]
-    length = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
-    k = split_counts(length, step)
-    inner = split_points(xy[src], xy[dst], k)
-    # sub-edge j of edge e runs from its j-th to its (j+1)-th chain point (src, inner..., dst)
-    first_inner = len(xy) + np.cumsum(k - 1) - (k - 1)
-    e = np.repeat(np.arange(len(k)), k)
-    j = np.arange(len(e)) - np.repeat(np.cumsum(k) - k, k)
-    sub_src = np.where(j == 0, src[e], first_inner[e] + j - 1)
-    sub_dst = np.where(j == k[e] - 1, dst[e], first_inner[e] + j)
-    return inner, sub_src, sub_dst, (length / k)[e]
+@numba.njit(cache=True)
+def split_into_parts(xy, src, dst, step, eps):
+    """Edges src -> dst split into k = max(1, ceil(L / step - eps)) equal parts. Returns the points
+    (xy, then each edge's inner points xy[src] + (xy[dst] - xy[src]) * (i / k)) and the sub-edges
+    (src, dst, length L / k). An edge at most eps steps over a multiple of the step is not split
+    further. Path2Graph splits its paths with this same kernel: same segment, same floats."""
+    length = np.empty(len(src))
+    k = np.empty(len(src), np.int64)
+    for e in range(len(src)):
+        dx, dy = xy[dst[e], 0] - xy[src[e], 0], xy[dst[e], 1] - xy[src[e], 1]
+        length[e] = np.sqrt(dx * dx + dy * dy)
+        k[e] = max(1, np.int64(np.ceil(length[e] / step - eps)))
+    points = np.empty((len(xy) + k.sum() - len(k), 2))
+    points[: len(xy)] = xy
+    sub_src, sub_dst = np.empty(k.sum(), np.int64), np.empty(k.sum(), np.int64)
+    sub_w = np.empty(k.sum())
+    at, s = len(xy), 0
+    for e in range(len(src)):
+        ax, ay, bx, by = xy[src[e], 0], xy[src[e], 1], xy[dst[e], 0], xy[dst[e], 1]
+        prev = src[e]
+        for i in range(1, k[e]):
+            t = i / k[e]
+            points[at, 0], points[at, 1] = ax + (bx - ax) * t, ay + (by - ay) * t
+            sub_src[s], sub_dst[s], sub_w[s] = prev, at, length[e] / k[e]
+            prev, at, s = at, at + 1, s + 1
+        sub_src[s], sub_dst[s], sub_w[s] = prev, dst[e], length[e] / k[e]
+        s += 1
+    return points, sub_src, sub_dst, sub_w
 
 
-def _dense(xy: np.ndarray, edges: np.ndarray, step: float, directed: bool) -> Dense:
-    inner, sub_src, sub_dst, sub_w = _chains(xy, edges, step)
-    points = np.concatenate([xy, inner])
-    vertex, n = identical_points(points)
-    first = np.full(n, len(points))
-    np.minimum.at(first, vertex, np.arange(len(points)))
-    src, dst = vertex[sub_src], vertex[sub_dst]
-    if not directed:
-        src, dst, sub_w = (
-            np.concatenate([src, dst]),
-            np.concatenate([dst, src]),
-            np.concatenate([sub_w, sub_w]),
-        )
-    if n < len(points):  # identical points made one: one edge per (src, dst), the shortest, no loops
-        order = np.lexsort((sub_w, dst, src))
-        src, dst, sub_w = src[order], dst[order], sub_w[order]
-        keep = (src != dst) & np.append(True, (src[1:] != src[:-1]) | (dst[1:] != dst[:-1]))
-        src, dst, sub_w = src[keep], dst[keep], sub_w[keep]
-    indptr, order = _rows(src, n)
-    out_degree, in_degree = np.diff(indptr), np.bincount(dst, minlength=n)
+@numba.njit(cache=True)
+def _adjacency(vertex, n, sub_src, sub_dst, sub_w, directed):
+    """CSR (indptr, nbr, weight) and junction flags over the vertices (identical points made one):
+    one edge per (src, dst), the shortest, no self-loops; both ways when undirected."""
+    m = len(sub_src)
+    if directed and n == len(vertex):  # nothing was merged: the sub-edges are distinct already
+        indptr, rows = _rows(sub_src, n)
+        in_degree = np.bincount(sub_dst, minlength=n)
+        out_degree = indptr[1:] - indptr[:-1]
+        return indptr, sub_dst[rows], sub_w[rows], (in_degree >= 2) | (out_degree >= 2)
+    both = 1 if directed else 2
+    src, dst, w = np.empty(both * m, np.int64), np.empty(both * m, np.int64), np.empty(both * m)
+    for i in range(m):
+        src[i], dst[i], w[i] = vertex[sub_src[i]], vertex[sub_dst[i]], sub_w[i]
+        if not directed:
+            src[m + i], dst[m + i], w[m + i] = dst[i], src[i], sub_w[i]
+    if n == len(vertex):  # nothing was merged: both ways of distinct sub-edges are distinct
+        indptr, rows = _rows(src, n)
+        out_degree = indptr[1:] - indptr[:-1]
+        return indptr, dst[rows], w[rows], out_degree >= 3
+    order = np.argsort(src * n + dst)
+    keep = np.zeros(len(src), np.bool_)
+    last = -1
+    for r in range(len(order)):
+        i = order[r]
+        if src[i] == dst[i]:
+            continue
+        if last >= 0 and src[last] == src[i] and dst[last] == dst[i]:
+            if w[i] < w[last]:  # a shorter copy of the same edge
+                keep[last], keep[i], last = False, True, i
+            continue
+        keep[i], last = True, i
+    kept = np.flatnonzero(keep)
+    indptr, rows = _rows(src[kept], n)
+    in_degree = np.bincount(dst[kept], minlength=n)
+    out_degree = indptr[1:] - indptr[:-1]
     junction = (in_degree >= 2) | (out_degree >= 2) if directed else out_degree >= 3
-    return Dense(xy=points[first], indptr=indptr, nbr=dst[order], weight=sub_w[order], junction=junction)
+    return indptr, dst[kept][rows], w[kept][rows], junction
 
 
 def densify(graph: LaneGraph, step: float) -> dict[str, Dense]:
@@ -171,8 +197,18 @@ def densify(graph: LaneGraph, step: float) -> dict[str, Dense]:
     identical coordinates made one vertex. Junctions: in- or out-degree >= 2 (directed), >= 3
     distinct neighbours (undirected)."""
     xy = np.stack([np.asarray(graph.x, np.float64), np.asarray(graph.y, np.float64)], axis=1) + 0.0  # no -0.0
-    directed, undirected = unique_edges(graph, True), unique_edges(graph, False)
-    out = {"directed": _dense(xy, directed, step, True), "undirected": _dense(xy, undirected, step, False)}
+    out, last = {}, None
+    for mode in ("directed", "undirected"):
+        edges = unique_edges(graph, mode == "directed")
+        if last is None or len(edges) != len(last[0]):  # the same edges unless u -> v and v -> u
+            points, sub_src, sub_dst, sub_w = split_into_parts(xy, edges[:, 0], edges[:, 1], step, EPS)
+            vertex, n = identical_points(points)
+            first = np.full(n, len(points))
+            np.minimum.at(first, vertex, np.arange(len(points)))
+            last = (edges, points[first], vertex, n, sub_src, sub_dst, sub_w)
+        edges, xy_out, vertex, n, sub_src, sub_dst, sub_w = last
+        indptr, nbr, weight, junction = _adjacency(vertex, n, sub_src, sub_dst, sub_w, mode == "directed")
+        out[mode] = Dense(xy_out, indptr, nbr, weight, junction)
     return out
 
 
@@ -210,8 +246,9 @@ def _rows(keys, n):
 
 
 @numba.njit(cache=True)
-def near_pairs(a_xy, b_xy, radius, eps):
-    """(count per a, b, distance) of the pairs closer than radius - eps, grouped by a, b ascending.
+def near_pairs(a_xy, b_xy, radius, eps, group_a, group_b):
+    """(count per a, b, distance) of the pairs closer than radius - eps, grouped by a (b in no
+    particular order), leaving out pairs in the same group (group_a[i] == group_b[j]).
 
     B is bucketed in square cells of side >= radius, so each a only looks at the 3 x 3 cells around
     its own (cKDTree does the same search several times slower at this size, mostly in building its
@@ -226,6 +263,7 @@ def near_pairs(a_xy, b_xy, radius, eps):
     start, order = _rows(cell_of_b, nx * ny)  # B by cell, ascending within a cell
 
     limit = radius - eps
+    near2 = (limit * 1.000001) ** 2  # a cheap first test, looser than the exact one
     count = np.zeros(len(a_xy), np.int64)
     out_b, out_d = np.empty(0, np.int64), np.empty(0)
     for fill in range(2):  # count, then fill
@@ -233,20 +271,19 @@ def near_pairs(a_xy, b_xy, radius, eps):
         for i in range(len(a_xy)):
             ax, ay = a_xy[i, 0], a_xy[i, 1]
             cx, cy = np.int64(np.floor(ax / cell)) - x0, np.int64(np.floor(ay / cell)) - y0
-            row_start = at
             for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
                 for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
                     for s in range(start[gx * ny + gy], start[gx * ny + gy + 1]):
                         j = order[s]
+                        if group_a[i] == group_b[j]:
+                            continue
                         dx, dy = ax - b_xy[j, 0], ay - b_xy[j, 1]
+                        if dx * dx + dy * dy > near2:
+                            continue
                         d = np.sqrt(dx * dx + dy * dy)
                         if d < limit:
-                            if fill:  # insertion sort by j: a row holds a handful of pairs
-                                k = at
-                                while k > row_start and out_b[k - 1] > j:
-                                    out_b[k], out_d[k] = out_b[k - 1], out_d[k - 1]
-                                    k -= 1
-                                out_b[k], out_d[k] = j, d
+                            if fill:
+                                out_b[at], out_d[at] = j, d
                             else:
                                 count[i] += 1
                             at += 1
@@ -256,29 +293,39 @@ def near_pairs(a_xy, b_xy, radius, eps):
 
 
 @numba.njit(cache=True)
-def _ties_by_index(order, dist):
-    """Sort each run of equal distances of an (unstable) argsort by pair index, i.e. by (a, b)."""
+def ties_by_key(order, dist, key):
+    """Sort each run of equal distances of an (unstable) argsort by key, i.e. by (a, b)."""
     s = 0
     while s < len(order):
         t = s + 1
         while t < len(order) and dist[order[t]] == dist[order[s]]:
             t += 1
         if t - s > 1:
-            order[s:t] = np.sort(order[s:t])
+            run = order[s:t].copy()
+            order[s:t] = run[np.argsort(key[run])]
         s = t
     return order
 
 
+@numba.njit(cache=True)
+def _ranked(count, pair_b, dist, order, n_a, n_b):
+    """The pairs in matching order (order: an unstable argsort of dist), and their rows by a and b."""
+    pair_a = np.repeat(np.arange(n_a), count)
+    order = ties_by_key(order, dist, pair_a * n_b + pair_b)
+    a, b = pair_a[order], pair_b[order]
+    a_ptr, a_rank = _rows(a, n_a)
+    b_ptr, b_rank = _rows(b, n_b)
+    return a, b, dist[order], a_ptr, a_rank, b_ptr, b_rank
+
+
 def candidate_pairs(a_xy: np.ndarray, b_xy: np.ndarray, radius: float) -> Candidates:
     if len(a_xy) and len(b_xy):
-        count, pair_b, dist = near_pairs(a_xy, b_xy, radius, EPS)
+        no_group_a, no_group_b = np.full(len(a_xy), -1), np.full(len(b_xy), -2)
+        count, pair_b, dist = near_pairs(a_xy, b_xy, radius, EPS, no_group_a, no_group_b)
     else:
         count, pair_b, dist = np.zeros(len(a_xy), np.int64), np.zeros(0, np.int64), np.zeros(0)
-    pair_a = np.repeat(np.arange(len(a_xy)), count)
     # numpy's unstable sort is several times faster than a stable one; ties are rare and fixed after
-    order = _ties_by_index(np.argsort(dist), dist)
-    a, b = pair_a[order], pair_b[order]
-    return Candidates(a, b, dist[order], *_rows(a, len(a_xy)), *_rows(b, len(b_xy)))
+    return Candidates(*_ranked(count, pair_b, dist, np.argsort(dist), len(a_xy), len(b_xy)))
 
 
 @numba.njit(cache=True)
@@ -563,19 +610,25 @@ class FractionSum:
     over pairs and frames come out the same whatever their order, and equal the reference's."""
 
     def __init__(self, numerators: np.ndarray | None = None):
-        self.numerators = np.trim_zeros(np.zeros(0, np.int64) if numerators is None else numerators, "b")
+        self.numerators = np.zeros(0, np.int64) if numerators is None else numerators
 
     @classmethod
     def of(cls, m: np.ndarray, s: np.ndarray) -> FractionSum:
         return cls(np.bincount(s, weights=m).astype(np.int64) if len(s) else None)
 
     def __add__(self, other: FractionSum) -> FractionSum:
-        n = max(len(self.numerators), len(other.numerators))
         a, b = self.numerators, other.numerators
-        return FractionSum(np.pad(a, (0, n - len(a))) + np.pad(b, (0, n - len(b))))
+        if len(a) < len(b):
+            a, b = b, a
+        total = a.copy()
+        total[: len(b)] += b
+        return FractionSum(total)
 
     def __eq__(self, other) -> bool:
-        return isinstance(other, FractionSum) and np.array_equal(self.numerators, other.numerators)
+        if not isinstance(other, FractionSum):
+            return False
+        # trailing zeros say nothing
+        return np.array_equal(np.trim_zeros(self.numerators, "b"), np.trim_zeros(other.numerators, "b"))
 
     def __repr__(self) -> str:
         return f"FractionSum({self.value()})"
@@ -689,9 +742,10 @@ def draw(graph: LaneGraph, params: MetricParams) -> np.ndarray:
     res = params.miou_resolution
     rows, cols = round((rng.y_max - rng.y_min) / res), round((rng.x_max - rng.x_min) / res)
     xy = np.stack([np.asarray(graph.x, np.float64), np.asarray(graph.y, np.float64)], axis=1)
-    edges = unique_edges(graph, directed=False)
-    lonely = np.setdiff1d(np.arange(len(xy)), edges.ravel())
-    src, dst = np.concatenate([edges[:, 0], lonely]), np.concatenate([edges[:, 1], lonely])
+    # repeats and both ways draw the same cells; a vertex with no edge is drawn as a dot
+    lonely = np.flatnonzero(np.bincount(np.concatenate([graph.src, graph.dst]), minlength=len(xy)) == 0)
+    src = np.concatenate([np.asarray(graph.src, np.int64), lonely])
+    dst = np.concatenate([np.asarray(graph.dst, np.int64), lonely])
     return _draw(xy, src, dst, rng.x_min, rng.y_max, res, rows, cols, params.miou_line_width / 2 + EPS)
 
 

@@ -1,17 +1,16 @@
 """Path2Graph (LaneGAP, Alg. 2): a set of directed paths back to one lane graph.
 
 1. Each path becomes a chain of vertices: its own polyline points, plus the points that split each
-   segment into k = ceil(L / step) equal parts, computed by the metric's own densification
-   (benchmark.metrics.split_points). Paths that share a segment therefore give the very same floats.
+   segment into k = ceil(L / step) equal parts, computed by the metric's own densification kernel.
+   Paths that share a segment therefore give the very same floats, and so does the ground truth.
 2. Points at identical coordinates are one vertex.
 3. Vertices of different paths closer than merge_radius are merged, nearest pairs first, into one
    vertex at their mean that inherits all their predecessors and successors; a merged vertex never
    takes two vertices of the same path. "Different paths" means different connected pieces after
-   step 2: paths that already share a vertex are joined where they truly meet, and merging their
-   nearby vertices would only blur a fork or a merge (ground-truth paths share every vertex they
-   have in common, so they are rebuilt exactly).
+   step 2: paths that already share a vertex meet where they truly meet, and merging their nearby
+   vertices would only blur a fork or a merge.
 4. Self-loops and repeated edges are dropped.
-docs/METRICS.md explains why this makes the ground truth round-trip to 1.000 by construction.
+Coordinates stay float64. docs/METRICS.md explains the round trip of the ground truth (1.000).
 """
 
 from __future__ import annotations
@@ -21,37 +20,8 @@ from collections.abc import Sequence
 import numba
 import numpy as np
 
-from benchmark.metrics import EPS, identical_points, near_pairs, split_counts, split_points
+from benchmark.metrics import EPS, identical_points, near_pairs, split_into_parts, ties_by_key
 from pipeline.lane_graph import LaneGraph
-
-
-def chains(paths: Sequence[np.ndarray], step: float) -> tuple[np.ndarray, np.ndarray]:
-    """(points (N, 2) float64, path index of each point): every path's points with its segments
-    split every <= step, path after path."""
-    sizes = np.array([len(p) for p in paths], np.int64)
-    if sizes.sum() == 0:
-        return np.zeros((0, 2)), np.zeros(0, np.int64)
-    points = np.concatenate([np.asarray(p, np.float64).reshape(-1, 2) for p in paths])
-    path_of = np.repeat(np.arange(len(paths)), sizes)
-    has_next = np.zeros(len(points), bool)
-    has_next[:-1] = path_of[:-1] == path_of[1:]
-    starts = np.flatnonzero(has_next)
-    d = points[starts + 1] - points[starts]
-    k = split_counts(np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]), step)
-    inner = split_points(points[starts], points[starts + 1], k)
-    # each original point moves up by the inner points inserted before it
-    inserted_after = np.zeros(len(points), np.int64)
-    inserted_after[starts] = k - 1
-    position = np.arange(len(points)) + np.cumsum(inserted_after) - inserted_after
-    out = np.empty((len(points) + len(inner), 2))
-    is_original = np.zeros(len(out), bool)
-    is_original[position] = True
-    out[position] = points
-    out[~is_original] = inner
-    out_path = np.empty(len(out), np.int64)
-    out_path[position] = path_of
-    out_path[~is_original] = np.repeat(path_of[starts], k - 1)
-    return out, out_path
 
 
 @numba.njit(cache=True)
@@ -63,27 +33,26 @@ def _find(parent, i):
 
 
 @numba.njit(cache=True)
-def _cluster(xy, vertex, n, chain_next, radius, eps):
-    """Step 3: the cluster of each step-2 vertex. xy are the points, vertex their step-2 vertex."""
+def _cluster(points, vertex, n, chain_src, chain_dst, radius, eps):
+    """Step 3: the cluster (a step-2 vertex) of each step-2 vertex."""
     # the connected pieces that the chains form over the step-2 vertices
     piece = np.arange(n)
-    for i in range(len(xy)):
-        if chain_next[i] >= 0:
-            piece[_find(piece, vertex[i])] = _find(piece, vertex[chain_next[i]])
+    for e in range(len(chain_src)):
+        piece[_find(piece, vertex[chain_src[e]])] = _find(piece, vertex[chain_dst[e]])
     first = np.full(n, -1, np.int64)
-    for i in range(len(xy) - 1, -1, -1):
+    for i in range(len(points) - 1, -1, -1):
         first[vertex[i]] = i
-    points = xy[first]
     for v in range(n):
         piece[v] = _find(piece, v)
 
     cluster = np.arange(n)
     if radius <= 0.0:
         return cluster
-    count, pair_b, dist = near_pairs(points, points, radius, eps)
+    xy = points[first]
+    count, pair_b, dist = near_pairs(xy, xy, radius, eps, piece, piece)
     pair_a = np.repeat(np.arange(n), count)
-    near = np.flatnonzero((pair_a < pair_b) & (piece[pair_a] != piece[pair_b]))
-    near = near[np.argsort(dist[near], kind="mergesort")]  # stable: ties stay in (a, b) order
+    near = np.flatnonzero(pair_a < pair_b)
+    near = near[ties_by_key(np.argsort(dist[near]), dist[near], pair_a[near] * n + pair_b[near])]
     # nearest pairs first; a cluster's members form a linked list from its root, to check that no
     # cluster ever holds two vertices of one piece
     next_member = np.full(n, -1, np.int64)
@@ -109,36 +78,50 @@ def _cluster(xy, vertex, n, chain_next, radius, eps):
     return cluster
 
 
+@numba.njit(cache=True)
+def _vertices(points, vertex, n, cluster):
+    """Output vertex of each step-2 vertex (clusters numbered by first appearance) and the
+    coordinates of each: the mean of its step-2 vertices, as first + mean offset, so that a vertex
+    of one keeps its floats."""
+    first = np.full(n, -1, np.int64)
+    for i in range(len(points) - 1, -1, -1):
+        first[vertex[i]] = i
+    out = np.full(n, -1, np.int64)
+    n_out = 0
+    for v in range(n):
+        if out[cluster[v]] < 0:
+            out[cluster[v]] = n_out
+            n_out += 1
+        out[v] = out[cluster[v]]
+    base = np.empty((n_out, 2))
+    total = np.zeros((n_out, 2))
+    size = np.zeros(n_out)
+    for v in range(n):
+        o, p = out[v], first[v]
+        if size[o] == 0:
+            base[o, 0], base[o, 1] = points[p, 0], points[p, 1]
+        total[o, 0] += points[p, 0] - base[o, 0]
+        total[o, 1] += points[p, 1] - base[o, 1]
+        size[o] += 1
+    for o in range(n_out):
+        base[o, 0] += total[o, 0] / size[o]
+        base[o, 1] += total[o, 1] / size[o]
+    return out, base
+
+
 def path2graph(paths: Sequence[np.ndarray], step: float = 0.15, merge_radius: float = 0.15) -> LaneGraph:
-    """The lane graph of a set of paths, each an (n, 2) array of points in driving order.
-
-    Coordinates stay float64: the chain points are then exactly the metric's densified points.
-    """
-    xy, path_of = chains(paths, step)
-    if len(xy) == 0:
+    """The lane graph of a set of paths, each an (n, 2) array of points in driving order."""
+    sizes = np.array([len(p) for p in paths], np.int64)
+    if sizes.sum() == 0:
         return LaneGraph.empty()
-    chain_next = np.arange(1, len(xy) + 1)
-    chain_next[np.append(path_of[1:] != path_of[:-1], True)] = -1
-    vertex, n = identical_points(xy)
-    cluster = _cluster(xy, vertex, n, chain_next, merge_radius, EPS)
-
-    # one output vertex per cluster, numbered by first appearance, at the mean of its step-2 vertices
-    first = np.full(n, len(xy))
-    np.minimum.at(first, vertex, np.arange(len(xy)))
-    points = xy[first]
-    roots, root_first, out_of_vertex = np.unique(cluster, return_index=True, return_inverse=True)
-    rank = np.empty(len(roots), np.int64)
-    rank[np.argsort(root_first)] = np.arange(len(roots))
-    out_of_vertex = rank[out_of_vertex.ravel()]
-    n_out = len(roots)
-    first_vertex = np.full(n_out, n)
-    np.minimum.at(first_vertex, out_of_vertex, np.arange(n))
-    base = points[first_vertex]
-    offset = points - base[out_of_vertex]  # first + mean offset: a cluster of one keeps its floats
-    size = np.bincount(out_of_vertex, minlength=n_out)[:, None]
-    mean = base + np.stack([np.bincount(out_of_vertex, offset[:, i], n_out) for i in (0, 1)], axis=1) / size
-
-    linked = np.flatnonzero(chain_next >= 0)
-    src, dst = out_of_vertex[vertex[linked]], out_of_vertex[vertex[chain_next[linked]]]
+    xy = np.concatenate([np.asarray(p, np.float64).reshape(-1, 2) for p in paths]) + 0.0  # no -0.0
+    path_of = np.repeat(np.arange(len(paths)), sizes)
+    segment = np.flatnonzero(path_of[:-1] == path_of[1:])  # segment i: point i -> point i + 1
+    points, chain_src, chain_dst, _ = split_into_parts(xy, segment, segment + 1, step, EPS)
+    vertex, n = identical_points(points)
+    cluster = _cluster(points, vertex, n, chain_src, chain_dst, merge_radius, EPS)
+    out, mean = _vertices(points, vertex, n, cluster)
+    src, dst = out[vertex[chain_src]], out[vertex[chain_dst]]
+    n_out = len(mean)
     key = np.unique((src * n_out + dst)[src != dst])
     return LaneGraph(mean[:, 0], mean[:, 1], (key // n_out).astype(np.int32), (key % n_out).astype(np.int32))

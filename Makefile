@@ -3,7 +3,7 @@ PY := .venv/bin/python
 STAMP := .venv/.installed
 DEMO := demo
 
-.PHONY: demo test bench lint clean
+.PHONY: demo test bench bench-train lint clean
 
 $(STAMP): requirements.lock pyproject.toml
 	test -x $(PY) || python3.11 -m venv .venv || python3 -m venv .venv
@@ -12,15 +12,25 @@ $(STAMP): requirements.lock pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
+	rm -rf $(DEMO)
 	.venv/bin/cli synth --out $(DEMO)/raw
 	.venv/bin/cli prepare --dataset av2 --root $(DEMO)/raw/av2/sensor --out $(DEMO)/prepared/av2
 	.venv/bin/cli prepare --dataset nuscenes --root $(DEMO)/raw/nuscenes --version v1.0-mini --out $(DEMO)/prepared/nuscenes
+	.venv/bin/cli roundtrip --data $(DEMO)/prepared/av2 --via path --out $(DEMO)/roundtrip_path.json
+	.venv/bin/cli roundtrip --data $(DEMO)/prepared/av2 --via piece --out $(DEMO)/roundtrip_piece.json
+	.venv/bin/cli roundtrip --data $(DEMO)/prepared/av2 --via pixel --out $(DEMO)/roundtrip_pixel.json
+	.venv/bin/cli train --model lanegap --data $(DEMO)/prepared/av2 --out $(DEMO)/runs/lanegap_lidar --preset tiny --modality lidar --epochs 2
+	.venv/bin/cli eval --run $(DEMO)/runs/lanegap_lidar --data $(DEMO)/prepared/av2 --split val
 
 test: $(STAMP)
 	$(PY) -m pytest -n 2 tests
 
 bench: $(STAMP)
 	$(PY) benchmark/bench_prepare.py
+	$(PY) benchmark/bench_metrics.py
+
+bench-train: $(STAMP)
+	$(PY) baselines/bench_train.py
 
 lint: $(STAMP)
 	.venv/bin/ruff check .

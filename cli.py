@@ -5,11 +5,22 @@ Heavy modules (torch, av2, nuscenes) are imported inside the commands so that `c
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 import typer
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
+
+
+@contextmanager
+def reported_errors():
+    """Bad input (DataError is a ValueError) ends the command with its message and exit code 1."""
+    try:
+        yield
+    except (ValueError, FileNotFoundError) as error:
+        typer.secho(f"error: {error}", fg="red", err=True)
+        raise typer.Exit(1) from error
 
 
 @app.command()
@@ -52,12 +63,11 @@ def prepare(
     from rich.console import Console
     from rich.table import Table
 
-    from pipeline.errors import DataError
     from pipeline.geometry import Range
     from pipeline.prepare import prepare as run_prepare
     from pipeline.targets import TargetOptions
 
-    try:
+    with reported_errors():
         options = TargetOptions(
             Range.parse(range_), path_points, piece_points, max_paths, resolution, line_width
         )
@@ -65,9 +75,6 @@ def prepare(
             dataset, root, out, options, version=version, split=split, workers=workers,
             frame_stride=frame_stride, on_error=on_error, overwrite=overwrite,
         )  # fmt: skip
-    except (DataError, ValueError, FileNotFoundError) as error:
-        typer.secho(f"error: {error}", fg="red", err=True)
-        raise typer.Exit(1) from error
     table = Table(title=f"prepared {out}")
     for key in ("frames", "frames_skipped", "paths_per_frame", "pieces_per_frame", "junctions_per_frame",
                 "path_cap_hits", "logs_already_done", "frames_per_second"):  # fmt: skip
@@ -102,7 +109,7 @@ def train(
     if model != "lanegap":
         typer.secho(f"error: unknown model {model!r} (available: lanegap)", fg="red", err=True)
         raise typer.Exit(1)
-    try:
+    with reported_errors():
         if resume:  # the run's own config; only --epochs and --set may change it (e.g. to extend it)
             config = Config.load(out / "config.json")
             apply_overrides(config, ([f"train.epochs={epochs}"] if epochs else []) + set_)
@@ -115,9 +122,6 @@ def train(
         if data is None:
             raise ValueError("--data is required")
         summary = run_train(config, data, out, resume=resume, stop_after=stop_after)
-    except (ValueError, FileNotFoundError) as error:
-        typer.secho(f"error: {error}", fg="red", err=True)
-        raise typer.Exit(1) from error
     typer.echo(json.dumps(summary))
 
 
@@ -134,11 +138,8 @@ def eval_(
 
     from baselines.evaluate import evaluate
 
-    try:
+    with reported_errors():
         metrics = evaluate(run, data, split, device)
-    except (ValueError, FileNotFoundError) as error:
-        typer.secho(f"error: {error}", fg="red", err=True)
-        raise typer.Exit(1) from error
     table = Table(title=f"{run} on {metrics['split']} ({metrics['frames']} frames)")
     for name in ("precision", "recall", "f1"):
         table.add_row(f"directed TOPO {name}", f"{metrics['directed']['topo'][name]:.3f}")
@@ -168,11 +169,8 @@ def score(
     params = dict(step=step, match_radius=match_radius, reach_radius=reach_radius, matching=matching)
     if range_:
         params["bev_range"] = range_
-    try:
+    with reported_errors():
         result = run_score(pred, gt, out, workers=workers, **params)
-    except (ValueError, FileNotFoundError) as error:
-        typer.secho(f"error: {error}", fg="red", err=True)
-        raise typer.Exit(1) from error
     typer.echo(json.dumps(result, indent=2))
 
 
@@ -190,11 +188,8 @@ def roundtrip(
 
     from benchmark.roundtrip import roundtrip as run_roundtrip
 
-    try:
+    with reported_errors():
         result = run_roundtrip(data, via, out, merge_radius, workers, frame_stride)
-    except (ValueError, FileNotFoundError) as error:
-        typer.secho(f"error: {error}", fg="red", err=True)
-        raise typer.Exit(1) from error
     typer.echo(json.dumps(result, indent=2))
 
 

@@ -109,13 +109,14 @@ def unique_edges(graph: LaneGraph, directed: bool) -> np.ndarray:
 
 @dataclass
 class Dense:
-    """A densified graph in one mode, as flat arrays for the kernels."""
+    """A densified graph in one mode. xy and junction are in the definition's vertex numbering; the
+    kernels work in a chain-major numbering (see _chain_order): order[new] = vertex, new_of[vertex]."""
 
     xy: np.ndarray  # (n, 2) float64
-    indptr: np.ndarray  # (n + 1,) CSR of the edges that Reach follows (successors, or both ways)
-    nbr: np.ndarray
-    weight: np.ndarray
     junction: np.ndarray  # (n,) bool
+    order: np.ndarray
+    new_of: np.ndarray
+    chains: tuple  # the edges that Reach follows, in the chain-major numbering (see _chain_order)
 
     @property
     def n(self) -> int:
@@ -207,8 +208,10 @@ def densify(graph: LaneGraph, step: float) -> dict[str, Dense]:
             np.minimum.at(first, vertex, np.arange(len(points)))
             last = (edges, points[first], vertex, n, sub_src, sub_dst, sub_w)
         edges, xy_out, vertex, n, sub_src, sub_dst, sub_w = last
-        indptr, nbr, weight, junction = _adjacency(vertex, n, sub_src, sub_dst, sub_w, mode == "directed")
-        out[mode] = Dense(xy_out, indptr, nbr, weight, junction)
+        directed = mode == "directed"
+        indptr, nbr, weight, junction = _adjacency(vertex, n, sub_src, sub_dst, sub_w, directed)
+        order, new_of, chains = _chain_order(indptr, nbr, weight, directed)
+        out[mode] = Dense(xy_out, junction, order, new_of, chains)
     return out
 
 
@@ -379,46 +382,196 @@ def match(cand: Candidates, n_a: int, n_b: int, matching: str) -> Matching:
 
 
 @numba.njit(cache=True)
-def _reach(indptr, nbr, weight, source, limit, dist, stamp, queued, queue, sid, out):
-    """Reach(source): shortest distances pruned at limit, by label correcting with a FIFO queue.
+def _chain_order(indptr, nbr, weight, directed):
+    """A lane graph densified at 0.15 m is mostly chains: runs of vertices with one way in and one way
+    on (directed) or two neighbours (undirected). The other vertices are hubs; a closed run without
+    one gets its first vertex as hub. Renumbered hubs first, then chain after chain in driving order,
+    a walk along a chain is a walk along consecutive numbers, and Reach can run it in a tight loop.
 
-    Writes the vertices to out (returns how many) and marks them stamp == sid; dist, stamp, queued
-    and queue are work arrays reused across calls. From each vertex it walks straight on into the
-    first neighbour it improves and queues the others, so a chain costs a tight loop and no heap.
-    Any order of relaxations ends at the same labels: the shortest distances, the very floats
-    Dijkstra computes (the minimum over paths of the sums taken along them).
+    Returns (order: new -> old, new_of: old -> new, chains), chains in the new numbering:
+    (indptr, nbr, weight: the CSR; is_hub; first, last: the ends of each vertex's chain; w_in[v]: the
+    weight of the edge into v from the vertex before it (the entry hub for a chain's first);
+    w_exit[v], exit_hub[v] at a chain's last vertex: the edge on to the hub after it;
+    entry_hub[v] at a chain's first vertex; directed)."""
+    n = len(indptr) - 1
+    out_degree = indptr[1:] - indptr[:-1]
+    in_degree = np.zeros(n, np.int64)
+    for e in range(len(nbr)):
+        in_degree[nbr[e]] += 1
+    hub = out_degree != 2
+    if directed:
+        hub = (in_degree != 1) | (out_degree != 1)
+    new_of = np.full(n, -1, np.int64)
+    order = np.empty(n, np.int64)
+    is_hub = np.zeros(n, np.bool_)
+    first, last = np.zeros(n, np.int64), np.zeros(n, np.int64)
+    w_in, w_exit = np.zeros(n), np.zeros(n)
+    entry_hub, exit_hub = np.full(n, -1, np.int64), np.full(n, -1, np.int64)
+    count = 0
+    for v in range(n):
+        if hub[v]:
+            new_of[v], order[count], is_hub[count] = count, v, True
+            count += 1
+    done, unseen = 0, 0  # order[:done] have had their chains followed; vertices < unseen are placed
+    while True:
+        while done < count:
+            h = order[done]
+            done += 1
+            if not hub[h]:
+                continue
+            for e in range(indptr[h], indptr[h + 1]):
+                v = nbr[e]
+                if hub[v] or new_of[v] >= 0:
+                    continue
+                chain_first, prev, w = count, h, weight[e]
+                while True:  # follow the chain from v to the next hub
+                    new_of[v], order[count], w_in[count] = count, v, w
+                    count += 1
+                    nxt = -1
+                    for e2 in range(indptr[v], indptr[v + 1]):
+                        if directed or nbr[e2] != prev:
+                            nxt, w = nbr[e2], weight[e2]
+                            break
+                    if hub[nxt] or new_of[nxt] >= 0:
+                        break
+                    prev, v = v, nxt
+                first[chain_first:count], last[chain_first:count] = chain_first, count - 1
+                entry_hub[chain_first] = new_of[h]
+                w_exit[count - 1], exit_hub[count - 1] = w, nxt  # old numbering, mapped below
+        while unseen < n and new_of[unseen] >= 0:
+            unseen += 1
+        if unseen == n:
+            break
+        hub[unseen] = True  # a closed run without a hub: its first vertex becomes one
+        new_of[unseen], order[count], is_hub[count] = count, unseen, True
+        count += 1
+    for i in range(n):
+        if exit_hub[i] >= 0:
+            exit_hub[i] = new_of[exit_hub[i]]
+    new_indptr = np.zeros(n + 1, np.int64)
+    for u in range(n):
+        new_indptr[u + 1] = new_indptr[u] + out_degree[order[u]]
+    new_nbr, new_weight = np.empty(len(nbr), np.int64), np.empty(len(nbr))
+    for u in range(n):
+        old = order[u]
+        at = new_indptr[u]
+        for e in range(indptr[old], indptr[old + 1]):
+            new_nbr[at], new_weight[at] = new_of[nbr[e]], weight[e]
+            at += 1
+    chains = (new_indptr, new_nbr, new_weight, is_hub, first, last, w_in, w_exit, entry_hub, exit_hub)
+    return order, new_of, (*chains, directed)
+
+
+@numba.njit(cache=True, inline="always")
+def _walk(first, last, w_in, w_exit, entry_hub, exit_hub, v, d, forward, limit, stamp, sid, out, count):
+    """From chain vertex v, at distance d < limit, along its chain: marks (stamp == sid, appended to
+    out) the vertices closer than limit; returns (count, the hub at the chain's end, or -1 when that
+    is out of reach, and its distance)."""
+    if stamp[v] != sid:
+        stamp[v], out[count], count = sid, v, count + 1
+    if forward:
+        while v != last[v]:
+            d += w_in[v + 1]
+            if d >= limit:
+                return count, -1, 0.0
+            v += 1
+            if stamp[v] != sid:
+                stamp[v], out[count], count = sid, v, count + 1
+        return count, exit_hub[v], d + w_exit[v]
+    while v != first[v]:
+        d += w_in[v]
+        if d >= limit:
+            return count, -1, 0.0
+        v -= 1
+        if stamp[v] != sid:
+            stamp[v], out[count], count = sid, v, count + 1
+    return count, entry_hub[v], d + w_in[v]
+
+
+@numba.njit(cache=True, inline="always")
+def _reach(
+    indptr, nbr, weight, is_hub, first, last, w_in, w_exit, entry_hub, exit_hub, directed,
+    source, limit, hub_dist, stamp, queued, queue, sid, out,
+):  # fmt: skip
+    """Reach(source) in the chain-major numbering: chains are walked in tight loops; between hubs,
+    labels are corrected with a FIFO queue until no edge improves one.
+
+    Writes the vertices to out (returns how many) and marks them stamp == sid; hub_dist, stamp,
+    queued and queue are work arrays reused across calls. Distances are summed from the source along
+    each path, so the labels are the very floats Dijkstra computes (the minimum over paths).
     """
-    stamp[source], dist[source], out[0] = sid, 0.0, source
-    count, head, tail, size = 1, 0, 1, len(queue)
-    queue[0], queued[source] = source, sid
+    count, head, tail, size = 0, 0, 0, len(queue)
+    hub_a, dist_a, hub_b, dist_b = -1, 0.0, -1, 0.0  # the hubs the source reaches first
+    if is_hub[source]:
+        hub_a = source
+    else:
+        count, hub_a, dist_a = _walk(
+            first, last, w_in, w_exit, entry_hub, exit_hub, source, 0.0, True, limit, stamp, sid, out, count
+        )
+        if not directed:
+            count, hub_b, dist_b = _walk(
+                first,
+                last,
+                w_in,
+                w_exit,
+                entry_hub,
+                exit_hub,
+                source,
+                0.0,
+                False,
+                limit,
+                stamp,
+                sid,
+                out,
+                count,
+            )
+    for h, d in ((hub_a, dist_a), (hub_b, dist_b)):
+        if h >= 0 and d < limit and (stamp[h] != sid or d < hub_dist[h]):
+            if stamp[h] != sid:
+                stamp[h], out[count], count = sid, h, count + 1
+            hub_dist[h] = d
+            if queued[h] != sid:
+                queued[h], queue[tail] = sid, h
+                tail = tail + 1 if tail + 1 < size else 0
     while head != tail:
         u = queue[head]
         head = head + 1 if head + 1 < size else 0
         queued[u] = 0
-        while u >= 0:
-            walk_on = -1
-            for e in range(indptr[u], indptr[u + 1]):
-                v, dv = nbr[e], dist[u] + weight[e]
-                if dv >= limit or (stamp[v] == sid and dv >= dist[v]):
+        for e in range(indptr[u], indptr[u + 1]):
+            v, d = nbr[e], hub_dist[u] + weight[e]
+            if d >= limit:
+                continue
+            if not is_hub[v]:  # into a chain at one of its ends, walking away from u
+                forward = directed or (first[v] == v and entry_hub[v] == u)
+                count, v, d = _walk(
+                    first,
+                    last,
+                    w_in,
+                    w_exit,
+                    entry_hub,
+                    exit_hub,
+                    v,
+                    d,
+                    forward,
+                    limit,
+                    stamp,
+                    sid,
+                    out,
+                    count,
+                )
+                if v < 0 or d >= limit:
                     continue
+            if stamp[v] != sid or d < hub_dist[v]:
                 if stamp[v] != sid:
-                    stamp[v] = sid
-                    out[count] = v
-                    count += 1
-                dist[v] = dv
-                if queued[v] == sid:
-                    continue
-                if walk_on < 0:
-                    walk_on = v
-                else:
-                    queued[v] = sid
-                    queue[tail] = v
+                    stamp[v], out[count], count = sid, v, count + 1
+                hub_dist[v] = d
+                if queued[v] != sid:
+                    queued[v], queue[tail] = sid, v
                     tail = tail + 1 if tail + 1 < size else 0
-            u = walk_on
     return count
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _heap_push(keys, vals, size, key, val):
     i = size
     while i > 0 and keys[(i - 1) // 2] > key:
@@ -428,7 +581,7 @@ def _heap_push(keys, vals, size, key, val):
     return size + 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _heap_pop(keys, vals, size):
     top_key, top_val = keys[0], vals[0]
     size -= 1
@@ -446,7 +599,7 @@ def _heap_pop(keys, vals, size):
     return top_key, top_val, size
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _next_pair(ptr, ranks, other_end, other_stamp, sid, v, after):
     """The first pair of v ranked after `after` whose other end is in the other Reach set, or -1."""
     for i in range(ptr[v], ptr[v + 1]):
@@ -458,8 +611,9 @@ def _next_pair(ptr, ranks, other_end, other_stamp, sid, v, after):
 
 @numba.njit(cache=True)
 def _pair_counts(
-    pair_a, pair_b, a_indptr, a_nbr, a_weight, b_indptr, b_nbr, b_weight, limit,
-    cand_a, cand_b, a_ptr, a_rank, b_ptr, b_rank, partner_a, partner_b, rank_a, rank_b,
+    pair_a, pair_b, limit, cand_a, cand_b, a_ptr, a_rank, b_ptr, b_rank, partner_a, partner_b, rank_a, rank_b,
+    a_indptr, a_nbr, a_weight, a_is_hub, a_first, a_last, a_w_in, a_w_exit, a_entry, a_exit, directed,
+    b_indptr, b_nbr, b_weight, b_is_hub, b_first, b_last, b_w_in, b_w_exit, b_entry, b_exit, _,
 ):  # fmt: skip
     """For each pair (p, g): |S_p|, |S_g| and |M(S_p, S_g)|, S = Reach, M the greedy matching.
 
@@ -484,11 +638,13 @@ def _pair_counts(
     for k in range(len(pair_a)):
         sid = k + 1
         count_a = _reach(
-            a_indptr, a_nbr, a_weight, pair_a[k], limit, dist_a, stamp_a, queued_a, queue_a, sid, reach_a
-        )
+            a_indptr, a_nbr, a_weight, a_is_hub, a_first, a_last, a_w_in, a_w_exit, a_entry, a_exit, directed,
+            pair_a[k], limit, dist_a, stamp_a, queued_a, queue_a, sid, reach_a,
+        )  # fmt: skip
         count_b = _reach(
-            b_indptr, b_nbr, b_weight, pair_b[k], limit, dist_b, stamp_b, queued_b, queue_b, sid, reach_b
-        )
+            b_indptr, b_nbr, b_weight, b_is_hub, b_first, b_last, b_w_in, b_w_exit, b_entry, b_exit, directed,
+            pair_b[k], limit, dist_b, stamp_b, queued_b, queue_b, sid, reach_b,
+        )  # fmt: skip
         m, heap = 0, 0
         for i in range(count_a):
             a = reach_a[i]
@@ -549,18 +705,14 @@ def _pair_counts(
     return size_a, size_b, matched
 
 
-@numba.njit(cache=True)
-def _reach_set(indptr, nbr, weight, source, limit):
-    n = len(indptr) - 1
-    out, queue = np.empty(n, np.int64), np.empty(n + 1, np.int64)
-    work_dist, stamp, queued = np.empty(n), np.zeros(n, np.int64), np.zeros(n, np.int64)
-    count = _reach(indptr, nbr, weight, source, limit, work_dist, stamp, queued, queue, 1, out)
-    return np.sort(out[:count])
-
-
 def reach(graph: Dense, source: int, radius: float) -> np.ndarray:
     """Reach(G, v): the sorted vertices closer than radius to source along the edges."""
-    return _reach_set(graph.indptr, graph.nbr, graph.weight, source, radius - EPS)
+    n = graph.n
+    out, queue = np.empty(n, np.int64), np.empty(n + 1, np.int64)
+    hub_dist, stamp, queued = np.empty(n), np.zeros(n, np.int64), np.zeros(n, np.int64)
+    work = (hub_dist, stamp, queued, queue, 1, out)
+    count = _reach(*graph.chains, graph.new_of[source], radius - EPS, *work)
+    return np.sort(graph.order[out[:count]])
 
 
 @dataclass
@@ -574,13 +726,25 @@ class PairCounts:
     matched: np.ndarray  # |M(S_p, S_g)|
 
 
+def _renumbered(partner: np.ndarray, new_of: np.ndarray) -> np.ndarray:
+    out = np.full(len(partner), -1, np.int64)
+    out[partner >= 0] = new_of[partner[partner >= 0]]
+    return out
+
+
 def pair_counts(pred: Dense, gt: Dense, pair_p, pair_g, cand: Candidates, m: Matching, params: MetricParams):
     pair_p, pair_g = np.asarray(pair_p, np.int64), np.asarray(pair_g, np.int64)
     if params.matching == "greedy":
+        # everything in the kernels' chain-major numbering; the ranks keep the definition's order
+        cand_a, cand_b = pred.new_of[cand.a], gt.new_of[cand.b]
+        partner_a, partner_b = (
+            _renumbered(m.partner_a, gt.new_of)[pred.order],
+            _renumbered(m.partner_b, pred.new_of)[gt.order],
+        )
         sizes = _pair_counts(
-            pair_p, pair_g, pred.indptr, pred.nbr, pred.weight, gt.indptr, gt.nbr, gt.weight,
-            params.reach_radius - EPS, cand.a, cand.b, cand.a_ptr, cand.a_rank, cand.b_ptr, cand.b_rank,
-            m.partner_a, m.partner_b, m.rank_a, m.rank_b,
+            pred.new_of[pair_p], gt.new_of[pair_g], params.reach_radius - EPS,
+            cand_a, cand_b, *_rows(cand_a, pred.n), *_rows(cand_b, gt.n),
+            partner_a, partner_b, m.rank_a[pred.order], m.rank_b[gt.order], *pred.chains, *gt.chains,
         )  # fmt: skip
     else:  # a maximum-cardinality matching for each pair: slow, an option off by default
         sizes = tuple(np.zeros(len(pair_p), np.int64) for _ in range(3))

@@ -726,26 +726,31 @@ class PairCounts:
     matched: np.ndarray  # |M(S_p, S_g)|
 
 
-def _renumbered(partner: np.ndarray, new_of: np.ndarray) -> np.ndarray:
-    out = np.full(len(partner), -1, np.int64)
-    out[partner >= 0] = new_of[partner[partner >= 0]]
-    return out
+@numba.njit(cache=True)
+def _renumbered(cand_a, cand_b, partner_a, partner_b, rank_a, rank_b, new_of_a, order_a, new_of_b, order_b):
+    """The candidates and the matching in the kernels' chain-major numbering (ranks keep their order)."""
+    cand_a, cand_b = new_of_a[cand_a], new_of_b[cand_b]
+    new_partner_a, new_partner_b = np.full(len(order_a), -1, np.int64), np.full(len(order_b), -1, np.int64)
+    for new in range(len(order_a)):
+        if partner_a[order_a[new]] >= 0:
+            new_partner_a[new] = new_of_b[partner_a[order_a[new]]]
+    for new in range(len(order_b)):
+        if partner_b[order_b[new]] >= 0:
+            new_partner_b[new] = new_of_a[partner_b[order_b[new]]]
+    a_ptr, a_rank = _rows(cand_a, len(order_a))
+    b_ptr, b_rank = _rows(cand_b, len(order_b))
+    matching = (new_partner_a, new_partner_b, rank_a[order_a], rank_b[order_b])
+    return cand_a, cand_b, a_ptr, a_rank, b_ptr, b_rank, *matching
 
 
 def pair_counts(pred: Dense, gt: Dense, pair_p, pair_g, cand: Candidates, m: Matching, params: MetricParams):
     pair_p, pair_g = np.asarray(pair_p, np.int64), np.asarray(pair_g, np.int64)
     if params.matching == "greedy":
-        # everything in the kernels' chain-major numbering; the ranks keep the definition's order
-        cand_a, cand_b = pred.new_of[cand.a], gt.new_of[cand.b]
-        partner_a, partner_b = (
-            _renumbered(m.partner_a, gt.new_of)[pred.order],
-            _renumbered(m.partner_b, pred.new_of)[gt.order],
-        )
-        sizes = _pair_counts(
-            pred.new_of[pair_p], gt.new_of[pair_g], params.reach_radius - EPS,
-            cand_a, cand_b, *_rows(cand_a, pred.n), *_rows(cand_b, gt.n),
-            partner_a, partner_b, m.rank_a[pred.order], m.rank_b[gt.order], *pred.chains, *gt.chains,
-        )  # fmt: skip
+        matching = (m.partner_a, m.partner_b, m.rank_a, m.rank_b)
+        renumbered = _renumbered(cand.a, cand.b, *matching, pred.new_of, pred.order, gt.new_of, gt.order)
+        limit = params.reach_radius - EPS
+        pairs = (pred.new_of[pair_p], gt.new_of[pair_g])
+        sizes = _pair_counts(*pairs, limit, *renumbered, *pred.chains, *gt.chains)
     else:  # a maximum-cardinality matching for each pair: slow, an option off by default
         sizes = tuple(np.zeros(len(pair_p), np.int64) for _ in range(3))
         for k, (p, g) in enumerate(zip(pair_p.tolist(), pair_g.tolist())):

@@ -62,15 +62,19 @@ def identical_points(xy: np.ndarray) -> tuple[np.ndarray, int]:
 
 @numba.njit(cache=True)
 def _identical_points(xy, order):
-    same = np.arange(len(xy))  # the first point in the sort with the same coordinates
-    for s in range(len(order)):  # equal x sit together in the sort; compare y among them
-        i = order[s]
-        t = s - 1
-        while t >= 0 and xy[order[t], 0] == xy[i, 0]:
-            if xy[order[t], 1] == xy[i, 1]:
-                same[i] = same[order[t]]
-                break
-            t -= 1
+    same = np.arange(len(xy))  # a point with the same coordinates met before in the sort, or itself
+    s = 0
+    while s < len(order):  # equal x sit together in the sort: sort each such run by y
+        t = s + 1
+        while t < len(order) and xy[order[t], 0] == xy[order[s], 0]:
+            t += 1
+        if t - s > 1:
+            run = order[s:t].copy()
+            run = run[np.argsort(xy[run, 1])]
+            for r in range(1, len(run)):
+                if xy[run[r], 1] == xy[run[r - 1], 1]:
+                    same[run[r]] = same[run[r - 1]]
+        s = t
     vertex = np.full(len(xy), -1, np.int64)
     n = 0
     for i in range(len(xy)):

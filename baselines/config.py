@@ -189,7 +189,7 @@ def tiny() -> Config:
             cache_samples=True,
         ),
         train=TrainConfig(
-            epochs=40, batch_size=4, lr=1e-3, backbone_lr_mult=1.0, warmup_iters=50, amp=False, threads=2
+            epochs=6, batch_size=4, lr=1e-3, backbone_lr_mult=1.0, warmup_iters=50, amp=False, threads=2
         ),
     )
 

@@ -637,8 +637,8 @@ def _pair_counts(
     # the matching inside the window: the rank at which each vertex is taken (n_cand: never), by whom
     taken_a, with_a = np.empty(n_a, np.int64), np.empty(n_a, np.int64)
     taken_b, with_b = np.empty(n_b, np.int64), np.empty(n_b, np.int64)
-    heap_keys = np.empty(n_cand + n_a + n_b + 1, np.int64)
-    heap_vals = np.empty(n_cand + n_a + n_b + 1, np.int64)  # 2 * vertex + (0: of A, 1: of B)
+    heap_keys = np.empty(2 * n_cand + n_a + n_b + 1, np.int64)  # a pair enters at most once per end
+    heap_vals = np.empty(2 * n_cand + n_a + n_b + 1, np.int64)  # 2 * vertex + (0: of A, 1: of B)
     for k in range(len(pair_a)):
         sid = k + 1
         count_a = _reach(

@@ -143,10 +143,10 @@ def perfect(result: dict) -> bool:
 
 
 def test_round_trips_on_real_av2(prepared_av2, tmp_path):
-    """Every 4th of the 313 frames, to keep the test short (all of them: benchmark/bench_metrics.py)."""
-    assert perfect(roundtrip(prepared_av2, "path", tmp_path / "path.json", frame_stride=4))
-    assert perfect(roundtrip(prepared_av2, "piece", frame_stride=4))
-    pixel = roundtrip(prepared_av2, "pixel", frame_stride=4)
+    """Every 8th of the 313 frames, to keep the test short (docs/METRICS.md has all of them)."""
+    assert perfect(roundtrip(prepared_av2, "path", tmp_path / "path.json", frame_stride=8))
+    assert perfect(roundtrip(prepared_av2, "piece", frame_stride=8))
+    pixel = roundtrip(prepared_av2, "pixel", frame_stride=8)
     assert 0.5 < pixel["directed"]["topo"]["f1"] < 1 and 0.5 < pixel["miou"] < 1
     assert (tmp_path / "path.json").is_file()
 

@@ -3,7 +3,7 @@ PY := .venv/bin/python
 STAMP := .venv/.installed
 DEMO := demo
 
-.PHONY: demo test bench bench-train lint clean
+.PHONY: demo test test-learning bench bench-train lint clean
 
 $(STAMP): requirements.lock pyproject.toml
 	test -x $(PY) || python3.11 -m venv .venv || python3 -m venv .venv
@@ -24,6 +24,9 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -n 2 tests
+
+test-learning: $(STAMP)
+	LANEGRAPH_LEARNING_CHECK=1 $(PY) -m pytest -s tests/test_baselines_learning.py
 
 bench: $(STAMP)
 	$(PY) benchmark/bench_prepare.py

@@ -30,7 +30,9 @@ UNTRAINED_F1 = 0.1
 def test_lanegap_tiny_learns_the_synthetic_world(tmp_path):
     start = time.perf_counter()
     data = prepare_synthetic(tmp_path / "data", logs=10, frames_per_log=20)
-    config = resolve_config("tiny")
+    # Fusion reads the paint both in the images and in the LiDAR intensities; a short schedule fits
+    # the budget (the measured F1 of the camera-only and LiDAR-only runs was lower).
+    config = resolve_config("tiny", modality="fusion", epochs=2)
 
     untrained = tmp_path / "untrained"
     untrained.mkdir()

@@ -68,12 +68,19 @@ def _identical_points(xy, order):
         t = s + 1
         while t < len(order) and xy[order[t], 0] == xy[order[s], 0]:
             t += 1
-        if t - s > 1:
+        if t - s > 16:
             run = order[s:t].copy()
-            run = run[np.argsort(xy[run, 1])]
-            for r in range(1, len(run)):
-                if xy[run[r], 1] == xy[run[r - 1], 1]:
-                    same[run[r]] = same[run[r - 1]]
+            order[s:t] = run[np.argsort(xy[run, 1])]
+        else:  # most runs are a handful of points: sort them in place, without allocating
+            for r in range(s + 1, t):
+                i, q = order[r], r
+                while q > s and xy[order[q - 1], 1] > xy[i, 1]:
+                    order[q] = order[q - 1]
+                    q -= 1
+                order[q] = i
+        for r in range(s + 1, t):
+            if xy[order[r], 1] == xy[order[r - 1], 1]:
+                same[order[r]] = same[order[r - 1]]
         s = t
     vertex = np.full(len(xy), -1, np.int64)
     n = 0
@@ -253,50 +260,88 @@ def _rows(keys, n):
 
 
 @numba.njit(cache=True)
+def _cell_search(
+    a_xy, b_xy, limit, group_a, group_b, a_cell, a_order, b_cell, b_order, column, pair_a, pair_b, pair_d
+):
+    """near_pairs' search: the number of pairs found; those that fit in the buffers are written."""
+    near2 = (limit * 1.000001) ** 2  # a cheap first test, looser than the exact one
+    cursor = np.zeros(3, np.int64)
+    at = 0
+    for i in a_order:
+        if a_cell[i] < 0:
+            continue
+        for c in range(3):
+            first = a_cell[i] + (c - 1) * column - 1  # the run of cells (x - 1 + c, y - 1 .. y + 1)
+            while cursor[c] < len(b_cell) and b_cell[cursor[c]] < first:
+                cursor[c] += 1
+            s = cursor[c]
+            while s < len(b_cell) and b_cell[s] <= first + 2:
+                j = b_order[s]
+                s += 1
+                if group_a[i] == group_b[j]:
+                    continue
+                dx, dy = a_xy[i, 0] - b_xy[j, 0], a_xy[i, 1] - b_xy[j, 1]
+                if dx * dx + dy * dy > near2:
+                    continue
+                d = np.sqrt(dx * dx + dy * dy)
+                if d < limit:
+                    if at < len(pair_a):
+                        pair_a[at], pair_b[at], pair_d[at] = i, j, d
+                    at += 1
+    return at
+
+
+@numba.njit(cache=True)
 def near_pairs(a_xy, b_xy, radius, eps, group_a, group_b):
     """(count per a, b, distance) of the pairs closer than radius - eps, grouped by a (b in no
     particular order), leaving out pairs in the same group (group_a[i] == group_b[j]).
 
-    B is bucketed in square cells of side >= radius, so each a only looks at the 3 x 3 cells around
-    its own (cKDTree does the same search several times slower at this size, mostly in building its
-    trees and its result lists)."""
-    extent = max(np.ptp(b_xy[:, 0]), np.ptp(b_xy[:, 1]))
-    cell = max(radius, extent / 1024.0)  # at most ~1024 x 1024 cells, whatever the coordinates
-    bx = np.floor(b_xy[:, 0] / cell).astype(np.int64)
-    by = np.floor(b_xy[:, 1] / cell).astype(np.int64)
-    x0, y0 = bx.min(), by.min()
-    nx, ny = bx.max() - x0 + 1, by.max() - y0 + 1
-    cell_of_b = (bx - x0) * ny + (by - y0)
-    start, order = _rows(cell_of_b, nx * ny)  # B by cell, ascending within a cell
+    Both sets are sorted by the square cell of side radius they fall in, numbered column by column,
+    so that the 3 x 3 cells around a point are three runs of three consecutive cell numbers, and
+    walking A in cell order moves three cursors over B only forward. A dense grid of 0.15 m cells
+    would cost more to clear than the search itself, and cKDTree is several times slower at this
+    size, mostly in building its trees and its result lists."""
+    if len(a_xy) == 0 or len(b_xy) == 0:
+        return np.zeros(len(a_xy), np.int64), np.empty(0, np.int64), np.empty(0)
+    bx = np.floor(b_xy[:, 0] / radius).astype(np.int64)
+    by = np.floor(b_xy[:, 1] / radius).astype(np.int64)
+    x0, y0, x1, y1 = bx.min() - 1, by.min() - 1, bx.max() + 1, by.max() + 1
+    column = y1 - y0 + 2  # one unused cell number between columns: runs never spill into the next
+    b_cell = (bx - x0) * column + (by - y0)
+    b_order = np.argsort(b_cell)
+    b_cell = b_cell[b_order]
+    ax = np.floor(a_xy[:, 0] / radius).astype(np.int64)
+    ay = np.floor(a_xy[:, 1] / radius).astype(np.int64)
+    inside = (ax >= x0) & (ax <= x1) & (ay >= y0) & (ay <= y1)  # the others have no neighbour
+    a_cell = np.where(inside, (ax - x0) * column + (ay - y0), -1)
+    a_order = np.argsort(a_cell)
 
-    limit = radius - eps
-    near2 = (limit * 1.000001) ** 2  # a cheap first test, looser than the exact one
-    count = np.zeros(len(a_xy), np.int64)
-    out_b, out_d = np.empty(0, np.int64), np.empty(0)
-    for fill in range(2):  # count, then fill
-        at = 0
-        for i in range(len(a_xy)):
-            ax, ay = a_xy[i, 0], a_xy[i, 1]
-            cx, cy = np.int64(np.floor(ax / cell)) - x0, np.int64(np.floor(ay / cell)) - y0
-            for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
-                for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
-                    for s in range(start[gx * ny + gy], start[gx * ny + gy + 1]):
-                        j = order[s]
-                        if group_a[i] == group_b[j]:
-                            continue
-                        dx, dy = ax - b_xy[j, 0], ay - b_xy[j, 1]
-                        if dx * dx + dy * dy > near2:
-                            continue
-                        d = np.sqrt(dx * dx + dy * dy)
-                        if d < limit:
-                            if fill:
-                                out_b[at], out_d[at] = j, d
-                            else:
-                                count[i] += 1
-                            at += 1
-        if not fill:
-            out_b, out_d = np.empty(at, np.int64), np.empty(at)
-    return count, out_b, out_d
+    # buffers for ~16 pairs per point (0.45 m around points 0.15 m apart: ~9): reallocating them inside
+    # the search loop would slow it down 4x in numba, so a search that overflows runs again
+    size = 16 * len(a_xy) + 64
+    while True:
+        pair_a, pair_b, pair_d = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size)
+        at = _cell_search(
+            a_xy,
+            b_xy,
+            radius - eps,
+            group_a,
+            group_b,
+            a_cell,
+            a_order,
+            b_cell,
+            b_order,
+            column,
+            pair_a,
+            pair_b,
+            pair_d,
+        )
+        if at <= size:
+            break
+        size = at
+    count = np.bincount(pair_a[:at], minlength=len(a_xy))
+    _, rows = _rows(pair_a[:at], len(a_xy))  # grouped by a
+    return count, pair_b[rows], pair_d[rows]
 
 
 @numba.njit(cache=True)

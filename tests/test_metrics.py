@@ -20,6 +20,8 @@ from benchmark.metrics import (
     candidate_pairs,
     densify,
     frame_counts,
+    identical_points,
+    near_pairs,
     score_graphs,
 )
 from pipeline.lane_graph import LaneGraph
@@ -439,3 +441,38 @@ def test_fast_equals_reference_on_real_av2_frames(prepared_av2):
         pred = LaneGraph(gt.x + noise[0], gt.y + noise[1], gt.src[keep], gt.dst[keep])
         assert densify(gt, 0.15)["directed"].n > 250
         assert frame_counts(pred, gt, MetricParams()) == ref_counts(pred, gt, MetricParams())
+
+
+# ---------------------------------------------------------------------------------------------------
+# The spatial kernels against brute force
+
+coords = st.integers(-40, 40).map(lambda v: v * 0.05)  # exact ties and points on cell borders
+point_sets = st.lists(st.tuples(coords, coords, st.integers(0, 2)), max_size=30)
+
+
+@settings(max_examples=300, deadline=None)
+@given(point_sets, point_sets, st.sampled_from([0.1, 0.15, 0.45, 1.0]))
+def test_near_pairs_equal_brute_force(a, b, radius):
+    a_xy, b_xy = np.array([p[:2] for p in a]).reshape(-1, 2), np.array([p[:2] for p in b]).reshape(-1, 2)
+    group_a, group_b = np.array([p[2] for p in a], np.int64), np.array([p[2] for p in b], np.int64)
+    count, pair_b, dist = near_pairs(a_xy, b_xy, radius, EPS, group_a, group_b)
+    pair_a = np.repeat(np.arange(len(a)), count)
+    found = sorted(zip(pair_a.tolist(), pair_b.tolist(), dist.tolist()))
+    expected = sorted(
+        (i, j, math.dist(a_xy[i], b_xy[j]))
+        for i in range(len(a))
+        for j in range(len(b))
+        if group_a[i] != group_b[j] and math.dist(a_xy[i], b_xy[j]) < radius - EPS
+    )
+    assert [f[:2] for f in found] == [e[:2] for e in expected]
+    assert np.allclose([f[2] for f in found], [e[2] for e in expected], rtol=0, atol=1e-12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 3), st.integers(0, 3)), max_size=40))
+def test_identical_points_number_each_distinct_point_by_first_appearance(points):
+    xy = np.array(points, np.float64).reshape(-1, 2) * 0.15
+    vertex, n = identical_points(xy)
+    first_seen = list(dict.fromkeys(points))
+    assert n == len(first_seen)
+    assert vertex.tolist() == [first_seen.index(p) for p in points]

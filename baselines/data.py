@@ -122,7 +122,11 @@ class PreparedDataset(torch.utils.data.Dataset):
         in_split = pc.field("split") == split
         frames = read_table(self.data_dir, "frames", filter=in_split).sort_by("frame_id").to_pylist()
         if not frames:
-            raise ValueError(f"{self.data_dir}: no frames in split {split!r}")
+            splits = sorted(set(read_table(self.data_dir, "frames", columns=["split"])["split"].to_pylist()))
+            raise ValueError(
+                f"{self.data_dir}: no frames in split {split!r}; its splits are {', '.join(splits)} "
+                "(choose with --set train.train_split=... / train.val_split=..., or `cli eval --split`)"
+            )
         self.frames = frames
         frame_ids = set(f["frame_id"] for f in frames)
         in_frames = pc.field("frame_id").isin(sorted(frame_ids))

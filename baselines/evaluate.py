@@ -103,6 +103,7 @@ def evaluate(
     timed = len(dataset) - warmup_frames
     metrics = {
         **scores,
+        "metric_params": scores["params"],  # the thresholds; `params` is the parameter count here
         "split": split,
         "data": str(data_dir),
         "params": sum(p.numel() for p in model.parameters()),

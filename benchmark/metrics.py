@@ -310,11 +310,15 @@ def near_pairs(a_xy, b_xy, radius, eps, group_a, group_b):
     b_cell = (bx - x0) * column + (by - y0)
     b_order = np.argsort(b_cell)
     b_cell = b_cell[b_order]
-    ax = np.floor(a_xy[:, 0] / radius).astype(np.int64)
-    ay = np.floor(a_xy[:, 1] / radius).astype(np.int64)
-    inside = (ax >= x0) & (ax <= x1) & (ay >= y0) & (ay <= y1)  # the others have no neighbour
-    a_cell = np.where(inside, (ax - x0) * column + (ay - y0), -1)
-    a_order = np.argsort(a_cell)
+    if a_xy.shape == b_xy.shape and np.all(a_xy == b_xy):  # a self-join (Path2Graph): B's sort serves
+        a_order, a_cell = b_order, np.empty(len(a_xy), np.int64)
+        a_cell[b_order] = b_cell
+    else:
+        ax = np.floor(a_xy[:, 0] / radius).astype(np.int64)
+        ay = np.floor(a_xy[:, 1] / radius).astype(np.int64)
+        inside = (ax >= x0) & (ax <= x1) & (ay >= y0) & (ay <= y1)  # the others have no neighbour
+        a_cell = np.where(inside, (ax - x0) * column + (ay - y0), -1)
+        a_order = np.argsort(a_cell)
 
     # buffers for ~16 pairs per point (0.45 m around points 0.15 m apart: ~9): reallocating them inside
     # the search loop would slow it down 4x in numba, so a search that overflows runs again

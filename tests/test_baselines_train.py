@@ -142,6 +142,8 @@ def test_dataset_reads_sensors_and_targets(tmp_path):
     assert PreparedDataset(data, "train", config)[0].paths.shape == (2, 10, 2)
     batch = collate([dataset[0], dataset[1]])
     assert batch.sensors.images.shape == (2, 2, 3, 32, 64) and batch.sensors.points_mask.any(1).all()
+    with pytest.raises(ValueError, match="no frames in split 'mini_train'; its splits are train"):
+        PreparedDataset(data, "mini_train", config)
 
 
 def test_training_resumes_exactly(tmp_path):
@@ -210,6 +212,7 @@ def test_cli_train_then_eval(tmp_path):
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["frames"] == 4 and metrics["split"] == "train" and metrics["device"] == "cpu"
     assert 0 <= metrics["directed"]["topo"]["f1"] <= 1 and metrics["params"] > 0
+    assert metrics["metric_params"]["match_radius"] == 0.45
     assert metrics["fps_net"] >= metrics["fps"] > 0
     assert metrics["config"]["encoder"]["modality"] == "lidar"
     predictions = pq.read_table(run / "predictions.parquet")

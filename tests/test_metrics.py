@@ -451,8 +451,9 @@ point_sets = st.lists(st.tuples(coords, coords, st.integers(0, 2)), max_size=30)
 
 
 @settings(max_examples=300, deadline=None)
-@given(point_sets, point_sets, st.sampled_from([0.1, 0.15, 0.45, 1.0]))
-def test_near_pairs_equal_brute_force(a, b, radius):
+@given(point_sets, point_sets, st.sampled_from([0.1, 0.15, 0.45, 1.0]), st.booleans())
+def test_near_pairs_equal_brute_force(a, b, radius, self_join):
+    b = list(a) if self_join else b  # a self-join takes a shortcut (Path2Graph's case)
     a_xy, b_xy = np.array([p[:2] for p in a]).reshape(-1, 2), np.array([p[:2] for p in b]).reshape(-1, 2)
     group_a, group_b = np.array([p[2] for p in a], np.int64), np.array([p[2] for p in b], np.int64)
     count, pair_b, dist = near_pairs(a_xy, b_xy, radius, EPS, group_a, group_b)

@@ -21,8 +21,11 @@ TRAINED_F1 = 0.5
 UNTRAINED_F1 = 0.1
 
 
-# Opt-in until it is shown to pass within its budget on a quiet CI-sized machine: on this session's
-# shared machine it ran at 0.1 train steps/s and could not be seen to finish. `make test-learning`.
+# Opt-in (`make test-learning`) until the model reaches the bar: on a quiet 2-core machine this run
+# takes 68 s and reaches F1 0.22 (2026-11-30). Even fed the ground-truth lane mask instead of sensors,
+# the tiny decoder reaches only 0.23 on these validation frames after 2,000 steps (0.44 on the training
+# frames): frames with many overlapping paths (junctions, the roundabout) dominate the vertex-weighted
+# scores, and their predicted trunks do not coincide within Path2Graph's 0.15 m merge radius.
 @pytest.mark.skipif(
     os.environ.get("LANEGRAPH_LEARNING_CHECK") != "1",
     reason="learning check is opt-in: LANEGRAPH_LEARNING_CHECK=1 (make test-learning)",

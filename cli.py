@@ -58,6 +58,11 @@ def prepare(
         "fail", help="fail: stop at the first bad record; skip: log it to errors.jsonl"
     ),
     overwrite: bool = typer.Option(False, help="Redo logs whose shards already exist"),
+    split_file: list[str] = typer.Option(
+        [],
+        help="SPLIT=FILE of log ids / scene names, one per line (repeatable), replacing the dataset's "
+        "splits, e.g. StreamMapNet's geographically disjoint ones; logs in no file are left out",
+    ),
 ) -> None:
     """Crop lane graphs to the ego frame; write graphs, paths, pieces and rasters to Parquet."""
     from rich.console import Console
@@ -71,13 +76,20 @@ def prepare(
         options = TargetOptions(
             Range.parse(range_), path_points, piece_points, max_paths, resolution, line_width
         )
+        split_files = {}
+        for item in split_file:
+            name, sep, path = item.partition("=")
+            if not sep or not name or not path:
+                raise ValueError(f"--split-file expects SPLIT=FILE, got {item!r}")
+            split_files[name] = Path(path)
         summary = run_prepare(
             dataset, root, out, options, version=version, split=split, workers=workers,
-            frame_stride=frame_stride, on_error=on_error, overwrite=overwrite,
+            frame_stride=frame_stride, on_error=on_error, overwrite=overwrite, split_files=split_files,
         )  # fmt: skip
     table = Table(title=f"prepared {out}")
-    for key in ("frames", "frames_skipped", "paths_per_frame", "pieces_per_frame", "junctions_per_frame",
-                "path_cap_hits", "logs_already_done", "frames_per_second"):  # fmt: skip
+    keys = ("frames", "frames_skipped", "paths_per_frame", "pieces_per_frame", "junctions_per_frame",
+            "path_cap_hits", "logs_already_done", "logs_in_no_split_file", "frames_per_second")  # fmt: skip
+    for key in keys:
         value = summary[key]
         table.add_row(key.replace("_", " "), f"{value:.2f}" if isinstance(value, float) else str(value))
     Console().print(table)

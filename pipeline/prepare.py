@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import multiprocessing
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from importlib import metadata
 from pathlib import Path
 
@@ -64,6 +64,23 @@ def find_jobs(dataset: str, root: Path, version: str, split: str | None, frame_s
             for r in nuscenes.find_scenes(root, version, split)
         ]
     raise ValueError(f"unknown dataset {dataset!r}: expected av2 or nuscenes")
+
+
+def read_split_files(split_files: dict[str, Path]) -> dict[str, str]:
+    """{log id or scene name: split} from one file of names (one per line) per split, e.g. the
+    geographically disjoint splits of StreamMapNet. A name in two files is an error."""
+    split_of: dict[str, str] = {}
+    for split, path in split_files.items():
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"{path}: split file of split {split!r} not found")
+        for number, line in enumerate(Path(path).read_text().splitlines(), 1):
+            name = line.strip()
+            if not name or name.startswith("#"):
+                continue
+            if split_of.get(name, split) != split:
+                raise DataError(path, f"line {number}", f"{name} is already in split {split_of[name]!r}")
+            split_of[name] = split
+    return split_of
 
 
 def load_job(job: Job, frame_stride: int, options: TargetOptions) -> Log:
@@ -196,6 +213,7 @@ def prepare_log(
     lane_map = LaneMap.from_lanes(log.lanes)
     frames, targets = [], []
     for frame in log.frames:
+        frame.split = job.split  # a split file may have moved the log to another split
         try:
             if not np.isfinite(frame.ego_to_world).all():
                 raise DataError(
@@ -257,15 +275,26 @@ def prepare(
     frame_stride: int = 1,
     on_error: str = "fail",
     overwrite: bool = False,
+    split_files: dict[str, Path] | None = None,
 ) -> dict:
-    """Prepare every log of root into out; returns (and prints) a summary."""
+    """Prepare every log of root into out; returns (and prints) a summary. split_files ({split: file
+    of log ids or scene names}) replaces the dataset's own splits; logs in no file are left out."""
     if on_error not in ("fail", "skip"):
         raise ValueError(f"--on-error must be fail or skip, not {on_error!r}")
     root, out = Path(root).resolve(), Path(out)
-    jobs = find_jobs(dataset, root, version, split, frame_stride)
+    if split_files:  # the files' splits replace the dataset's own; --split then picks one of theirs
+        found = find_jobs(dataset, root, version, None, frame_stride)
+        split_of = read_split_files(split_files)
+        named = [replace(job, split=split_of[job.name]) for job in found if job.name in split_of]
+        jobs = [job for job in named if split is None or job.split == split]
+        left_out = len(found) - len(named)
+    else:
+        jobs, left_out = find_jobs(dataset, root, version, split, frame_stride), 0
     options_dict = asdict(options)
     options_dict["rng"] = options.rng.text
     parameters = {**options_dict, "frame_stride": frame_stride}
+    if split_files:
+        parameters["split_files"] = {name: str(Path(path).resolve()) for name, path in split_files.items()}
     manifest_path = out / "manifest.json"
     if manifest_path.is_file() and not overwrite:
         # shards made with other options must not be mixed with new ones
@@ -312,6 +341,7 @@ def prepare(
     frames = sum(r.frames for r in results)
     summary = {
         "logs": len(jobs),
+        "logs_in_no_split_file": left_out,
         "logs_prepared": len(todo),
         "logs_already_done": len(jobs) - len(todo),
         "frames": frames,

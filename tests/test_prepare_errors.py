@@ -122,3 +122,44 @@ def test_rerun_with_other_options_is_refused(av2_root, tmp_path):
         prepare("av2", av2_root, out, TargetOptions(path_points=20), split="val", overwrite=True)["frames"]
         == 157
     )
+
+
+VAL_LOG = "3b3570b4-7b0b-3268-a571-b0889dbf40b6"
+
+
+def test_split_files_replace_the_dataset_splits(av2_root, tmp_path):
+    # both real logs swap splits; a name that is no log here is ignored; comments and blanks too
+    (tmp_path / "geo_train.txt").write_text(f"# geo split\n{VAL_LOG}\n\nnot-a-log\n")
+    (tmp_path / "geo_val.txt").write_text(f"{TRAIN_LOG}\n")
+    files = {"train": tmp_path / "geo_train.txt", "val": tmp_path / "geo_val.txt"}
+    out = tmp_path / "out"
+    summary = run(av2_root, out, split_files=files)
+    assert summary["logs"] == 2 and summary["logs_in_no_split_file"] == 0
+    frames = read_table(out, "frames", columns=["split", "log_id"]).to_pylist()
+    assert {(f["split"], f["log_id"]) for f in frames} == {("train", VAL_LOG), ("val", TRAIN_LOG)}
+    assert sorted(p.name for p in (out / "graphs").iterdir()) == [
+        f"train__{VAL_LOG}.parquet",
+        f"val__{TRAIN_LOG}.parquet",
+    ]
+    # --split picks one of the files' splits; a log in no file is left out and counted
+    (tmp_path / "geo_val.txt").write_text("")
+    only = run(av2_root, tmp_path / "only", split_files=files, split="train")
+    assert only["logs"] == 1 and only["logs_in_no_split_file"] == 1 and only["frames"] == 157
+
+
+def test_a_log_in_two_split_files_is_an_error(av2_root, tmp_path):
+    (tmp_path / "a.txt").write_text(f"{TRAIN_LOG}\n")
+    (tmp_path / "b.txt").write_text(f"{VAL_LOG}\n{TRAIN_LOG}\n")
+    files = {"train": tmp_path / "a.txt", "val": tmp_path / "b.txt"}
+    with pytest.raises(DataError, match=f"b.txt.*line 2.*{TRAIN_LOG} is already in split 'train'"):
+        run(av2_root, tmp_path / "out", split_files=files)
+    with pytest.raises(FileNotFoundError, match="missing.txt: split file of split 'val' not found"):
+        run(av2_root, tmp_path / "out", split_files={"val": tmp_path / "missing.txt"})
+
+
+def test_streammapnet_geo_splits_put_both_real_logs_in_train(av2_root, tmp_path):
+    splits = av2_root.parents[1] / "splits"
+    files = {"train": splits / "av2_geo_train.txt", "val": splits / "av2_geo_val.txt"}
+    summary = run(av2_root, tmp_path / "out", split_files=files)
+    assert summary["frames"] == 313 and summary["logs_in_no_split_file"] == 0
+    assert set(read_table(tmp_path / "out", "frames", columns=["split"])["split"].to_pylist()) == {"train"}

@@ -25,6 +25,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -n 2 tests
 
+# The learning check (opt-in) runs alone: its 5-minute budget is wall time on both cores.
 test-learning: $(STAMP)
 	LANEGRAPH_LEARNING_CHECK=1 $(PY) -m pytest -s tests/test_baselines_learning.py
 

@@ -179,7 +179,18 @@ def tiny() -> Config:
             pillar_subdivision=1,
             lidar_blocks=1,
         ),
-        decoder=DecoderConfig(num_paths=32, path_points=20, layers=3, heads=4, ffn_channels=128, dropout=0.0),
+        # score_threshold 0.7: a short schedule leaves many duplicate paths scoring 0.4-0.6. Chosen on the
+        # synthetic training frames after 480 steps, where F1 peaks at 0.7 or 0.8 depending on the seed
+        # (at 0.8 a less confident seed loses most of its recall).
+        decoder=DecoderConfig(
+            num_paths=32,
+            path_points=20,
+            layers=3,
+            heads=4,
+            ffn_channels=128,
+            dropout=0.0,
+            score_threshold=0.7,
+        ),  # fmt: skip
         data=DataConfig(
             # The synthetic images are already 1/4 (nuScenes) and 1/8 (AV2) of the real sizes.
             image_scale_nuscenes=0.5,
@@ -189,7 +200,7 @@ def tiny() -> Config:
             cache_samples=True,
         ),
         train=TrainConfig(
-            epochs=6, batch_size=4, lr=1e-3, backbone_lr_mult=1.0, warmup_iters=50, amp=False, threads=2
+            epochs=6, batch_size=4, lr=2e-3, backbone_lr_mult=1.0, warmup_iters=50, amp=False, threads=2
         ),
     )
 

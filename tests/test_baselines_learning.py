@@ -1,6 +1,7 @@
 """The learning check: LaneGAP (tiny preset, CPU) trained on the synthetic training logs must reach
 directed TOPO F1 >= 0.5 on the synthetic validation logs, which it never sees, while the untrained
-model scores below 0.1. The whole test stays within 5 minutes of CPU."""
+model scores below 0.1. The whole test (data, training, both evaluations) stays within 5 minutes on
+the 2-core CI machine, run alone (not beside other tests)."""
 
 from __future__ import annotations
 
@@ -21,21 +22,21 @@ TRAINED_F1 = 0.5
 UNTRAINED_F1 = 0.1
 
 
-# Opt-in (`make test-learning`) until the model reaches the bar: on a quiet 2-core machine this run
-# takes 68 s and reaches F1 0.22 (2026-11-30). Even fed the ground-truth lane mask instead of sensors,
-# the tiny decoder reaches only 0.23 on these validation frames after 2,000 steps (0.44 on the training
-# frames): frames with many overlapping paths (junctions, the roundabout) dominate the vertex-weighted
-# scores, and their predicted trunks do not coincide within Path2Graph's 0.15 m merge radius.
+# Opt-in (`make test-learning`, or LANEGRAPH_LEARNING_CHECK=1) while its margin is thin: on a quiet
+# 2-core machine it takes ~200 s and reaches F1 0.518 (seed 0) / 0.535 (seed 1) (2026-11-30), and a
+# red CI blocks everything else from landing.
 @pytest.mark.skipif(
     os.environ.get("LANEGRAPH_LEARNING_CHECK") != "1",
-    reason="learning check is opt-in: LANEGRAPH_LEARNING_CHECK=1 (make test-learning)",
+    reason="learning check is opt-in while its margin is thin: LANEGRAPH_LEARNING_CHECK=1",
 )
 def test_lanegap_tiny_learns_the_synthetic_world(tmp_path):
     start = time.perf_counter()
-    data = prepare_synthetic(tmp_path / "data", logs=10, frames_per_log=20)
-    # Fusion reads the paint both in the images and in the LiDAR intensities; a short schedule fits
-    # the budget (the measured F1 of the camera-only and LiDAR-only runs was lower).
-    config = resolve_config("tiny", modality="fusion", epochs=2)
+    # 10 logs (8 train, 2 val) of 100 frames, every 5th kept: 20 frames per log that show 5 times as
+    # much of the world as 20 consecutive ones; with consecutive frames the same run reaches only ~0.2.
+    data = prepare_synthetic(tmp_path / "data", logs=10, frames_per_log=100, frame_stride=5)
+    # Fusion reads the paint both in the images and in the LiDAR intensities (the synthetic sweeps are
+    # sparse: LiDAR alone stays near 0.1).
+    config = resolve_config("tiny", modality="fusion", epochs=12)
 
     untrained = tmp_path / "untrained"
     untrained.mkdir()

@@ -22,10 +22,12 @@ demo: $(STAMP)
 	.venv/bin/cli train --model lanegap --data $(DEMO)/prepared/av2 --out $(DEMO)/runs/lanegap_lidar --preset tiny --modality lidar --epochs 2
 	.venv/bin/cli eval --run $(DEMO)/runs/lanegap_lidar --data $(DEMO)/prepared/av2 --split val
 
+# The learning check runs alone, after the rest: its 5-minute budget is wall time on both cores, so
+# plain `pytest -n 2 tests` skips it unless LANEGRAPH_LEARNING_CHECK=1.
 test: $(STAMP)
 	$(PY) -m pytest -n 2 tests
+	$(MAKE) test-learning
 
-# The learning check (opt-in) runs alone: its 5-minute budget is wall time on both cores.
 test-learning: $(STAMP)
 	LANEGRAPH_LEARNING_CHECK=1 $(PY) -m pytest -s tests/test_baselines_learning.py
 

@@ -28,13 +28,16 @@ def synth(
     out: Path = typer.Option(..., help="Folder to write <out>/av2/sensor/... and <out>/nuscenes/..."),
     logs: int = typer.Option(4, help="Logs (AV2) / scenes (nuScenes) to write"),
     frames_per_log: int = typer.Option(20, help="Key frames per log"),
+    frame_period: float = typer.Option(0.1, help="Seconds between key frames (a multiple of 0.02)"),
     seed: int = typer.Option(0, help="Random seed; the same seed writes the same bytes"),
     sensors: bool = typer.Option(True, help="Also render camera images and LiDAR sweeps"),
 ) -> None:
     """Write a tiny synthetic raw dataset in the real AV2 and nuScenes on-disk formats."""
     from pipeline.synth import synth as write_synth
 
-    write_synth(out, logs=logs, frames_per_log=frames_per_log, seed=seed, sensors=sensors)
+    write_synth(
+        out, logs=logs, frames_per_log=frames_per_log, seed=seed, sensors=sensors, frame_period=frame_period
+    )
 
 
 @app.command()

@@ -4,7 +4,7 @@ Writes the synthetic data, prepares it, trains one run per modality and evaluate
 validation logs; prints and writes a JSON table of directed TOPO F1, train steps/s and frame rates.
 
     python -m baselines.bench_train [--out bench_train] [--epochs 60] [--modalities camera,lidar,fusion]
-        [--logs 10] [--frames-per-log 100] [--frame-stride 5]
+        [--logs 10] [--frames-per-log 20] [--frame-period 1.0]
 """
 
 from __future__ import annotations
@@ -18,18 +18,18 @@ from rich.console import Console
 from rich.table import Table
 
 
-def prepare_synthetic(folder: Path, logs: int, frames_per_log: int, frame_stride: int = 1) -> Path:
+def prepare_synthetic(folder: Path, logs: int, frames_per_log: int, frame_period: float = 0.1) -> Path:
     """The synthetic world written and prepared (AV2 format) under folder; reused when present.
-    frame_stride K keeps every K-th of the 10 Hz frames: the same number of frames, K times as many
-    different views of the world (what a short training run learns from)."""
+    A frame period of 1 s instead of 0.1 s spreads the same number of frames over ten times as much of
+    each route: ten times as many different views, which is what a short training run learns from."""
     from pipeline.prepare import prepare
     from pipeline.synth import synth
     from pipeline.targets import TargetOptions
 
     raw, prepared = folder / "raw", folder / "prepared"
     if not (prepared / "manifest.json").is_file():
-        synth(raw, logs=logs, frames_per_log=frames_per_log, seed=0)
-        prepare("av2", raw / "av2" / "sensor", prepared, TargetOptions(), frame_stride=frame_stride)
+        synth(raw, logs=logs, frames_per_log=frames_per_log, seed=0, frame_period=frame_period)
+        prepare("av2", raw / "av2" / "sensor", prepared, TargetOptions())
     return prepared
 
 
@@ -39,15 +39,15 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=60)
     parser.add_argument("--modalities", default="camera,lidar,fusion")
     parser.add_argument("--logs", type=int, default=10)
-    parser.add_argument("--frames-per-log", type=int, default=100)
-    parser.add_argument("--frame-stride", type=int, default=5)
+    parser.add_argument("--frames-per-log", type=int, default=20)
+    parser.add_argument("--frame-period", type=float, default=1.0, help="seconds between frames")
     args = parser.parse_args()
 
     from baselines.config import resolve_config
     from baselines.evaluate import evaluate
     from baselines.train import train
 
-    data = prepare_synthetic(args.out / "data", args.logs, args.frames_per_log, args.frame_stride)
+    data = prepare_synthetic(args.out / "data", args.logs, args.frames_per_log, args.frame_period)
     results = []
     for modality in args.modalities.split(","):
         run = args.out / f"lanegap_tiny_{modality}"

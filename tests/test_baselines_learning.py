@@ -22,18 +22,18 @@ TRAINED_F1 = 0.5
 UNTRAINED_F1 = 0.1
 
 
-# Opt-in (`make test-learning`, or LANEGRAPH_LEARNING_CHECK=1) while its margin is thin: on a quiet
-# 2-core machine it takes ~200 s and reaches F1 0.518 (seed 0) / 0.535 (seed 1) (2026-11-30), and a
-# red CI blocks everything else from landing.
+# It must run alone (`make test` runs it after the rest, via `make test-learning`): beside other
+# tests its 5 minutes of wall time would not hold. Measured alone on a quiet 2-core machine
+# (2026-11-30): ~190 s in all, F1 0.609.
 @pytest.mark.skipif(
     os.environ.get("LANEGRAPH_LEARNING_CHECK") != "1",
-    reason="learning check is opt-in while its margin is thin: LANEGRAPH_LEARNING_CHECK=1",
+    reason="the learning check runs alone: make test-learning (LANEGRAPH_LEARNING_CHECK=1)",
 )
 def test_lanegap_tiny_learns_the_synthetic_world(tmp_path):
     start = time.perf_counter()
-    # 10 logs (8 train, 2 val) of 100 frames, every 5th kept: 20 frames per log that show 5 times as
-    # much of the world as 20 consecutive ones; with consecutive frames the same run reaches only ~0.2.
-    data = prepare_synthetic(tmp_path / "data", logs=10, frames_per_log=100, frame_stride=5)
+    # 10 logs (8 train, 2 val) of 20 frames 1 s apart: ten times as much of the world as 20 frames at
+    # 10 Hz, with which the same run reaches only ~0.2 (0.52 with frames 0.5 s apart).
+    data = prepare_synthetic(tmp_path / "data", logs=10, frames_per_log=20, frame_period=1.0)
     # Fusion reads the paint both in the images and in the LiDAR intensities (the synthetic sweeps are
     # sparse: LiDAR alone stays near 0.1).
     config = resolve_config("tiny", modality="fusion", epochs=12)

@@ -440,3 +440,14 @@ def test_rewrites_its_own_output_and_refuses_foreign_folders(tmp_path):
         synth(tmp_path / "b")
     with pytest.raises(ValueError):
         synth(tmp_path / "c", logs=11)
+
+
+def test_a_longer_frame_period_spreads_the_frames_along_the_route(world):
+    dense = plan_logs(world, 2, 20, seed=0)
+    sparse = plan_logs(world, 2, 20, seed=0, frame_period_ns=1_000_000_000)
+    for d, s in zip(dense, sparse, strict=True):
+        assert np.all(np.diff(s.frame_ns) == 1_000_000_000) and np.isin(s.frame_ns, s.pose_ns).all()
+        covered = [np.ptp(p.station(p.frame_ns)) for p in (d, s)]
+        assert covered[1] > 5 * covered[0]  # the same 20 frames see far more of the road
+    with pytest.raises(ValueError, match="multiple of 0.02 s"):
+        plan_logs(world, 2, 20, seed=0, frame_period_ns=30_000_000)

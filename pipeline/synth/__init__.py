@@ -27,17 +27,26 @@ from pipeline.synth.world import NUSCENES_MAP, build_world
 MARKER = "synth.json"
 
 
-def synth(out: Path, logs: int = 4, frames_per_log: int = 20, seed: int = 0, sensors: bool = True) -> dict:
+def synth(
+    out: Path,
+    logs: int = 4,
+    frames_per_log: int = 20,
+    seed: int = 0,
+    sensors: bool = True,
+    frame_period: float = 0.1,
+) -> dict:
     """Write the dataset into out (replacing an earlier synth output there) and return a summary;
-    sensors=False leaves out the camera images and LiDAR sweeps (and the AV2 calibration)."""
+    sensors=False leaves out the camera images and LiDAR sweeps (and the AV2 calibration);
+    frame_period: seconds between frames (10 Hz, as both datasets' sweeps, by default)."""
     out = Path(out)
     world = build_world(seed)
-    plans = plan_logs(world, logs, frames_per_log, seed)
+    plans = plan_logs(world, logs, frames_per_log, seed, round(frame_period * 1e9))
     av2_root, nuscenes_root = out / "av2" / "sensor", out / "nuscenes"
     summary = {
         "complete": False,
         "seed": seed,
         "frames_per_log": frames_per_log,
+        "frame_period": frame_period,
         "sensors": sensors,
         "av2_root": str(av2_root.relative_to(out)),
         "nuscenes_root": str(nuscenes_root.relative_to(out)),

@@ -71,15 +71,21 @@ def split_of_logs(logs: int) -> list[str]:
     return ["train"] * (logs - val) + ["val"] * val
 
 
-def plan_logs(world: World, logs: int, frames_per_log: int, seed: int) -> list[LogPlan]:
+def plan_logs(
+    world: World, logs: int, frames_per_log: int, seed: int, frame_period_ns: int = FRAME_PERIOD_NS
+) -> list[LogPlan]:
+    """frame_period_ns: time between frames, a multiple of the pose period (10 Hz by default; longer
+    periods spread the same number of frames over more of each route)."""
     if frames_per_log < 1:
         raise ValueError("frames_per_log must be at least 1")
+    if frame_period_ns <= 0 or frame_period_ns % POSE_PERIOD_NS:
+        raise ValueError(f"the frame period must be a positive multiple of {POSE_PERIOD_NS / 1e9} s")
     rng = np.random.default_rng([seed, 2])
     plans, names = [], {"train": iter(MINI_TRAIN), "val": iter(MINI_VAL)}
     for index, split in enumerate(split_of_logs(logs)):
         route = world.routes[index % len(world.routes)]
         path = Path(tuple(p for lane in route.lanes for p in world.lanes[lane].path.pieces))
-        duration_s = ((frames_per_log - 1) * FRAME_PERIOD_NS + 2 * POSE_MARGIN_NS) * 1e-9
+        duration_s = ((frames_per_log - 1) * frame_period_ns + 2 * POSE_MARGIN_NS) * 1e-9
         speed = min(
             route.speed, (path.length - LEAD_GAP_M) / duration_s
         )  # slow down rather than run out of road
@@ -94,7 +100,7 @@ def plan_logs(world: World, logs: int, frames_per_log: int, seed: int) -> list[L
         pose_ns = first_ns + POSE_PERIOD_NS * np.arange(
             round(duration_s * 1e9 / POSE_PERIOD_NS) + 1, dtype=np.int64
         )
-        frame_ns = first_ns + POSE_MARGIN_NS + FRAME_PERIOD_NS * np.arange(frames_per_log, dtype=np.int64)
+        frame_ns = first_ns + POSE_MARGIN_NS + frame_period_ns * np.arange(frames_per_log, dtype=np.int64)
         plans.append(
             LogPlan(
                 index,

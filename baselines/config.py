@@ -190,7 +190,7 @@ def tiny() -> Config:
             ffn_channels=128,
             dropout=0.0,
             score_threshold=0.7,
-        ),  # fmt: skip
+        ),
         data=DataConfig(
             # The synthetic images are already 1/4 (nuScenes) and 1/8 (AV2) of the real sizes.
             image_scale_nuscenes=0.5,

@@ -35,7 +35,7 @@ def test_lanegap_tiny_learns_the_synthetic_world(tmp_path):
     # 10 Hz, with which the same run reaches only ~0.2 (0.52 with frames 0.5 s apart).
     data = prepare_synthetic(tmp_path / "data", logs=10, frames_per_log=20, frame_period=1.0)
     # Fusion reads the paint both in the images and in the LiDAR intensities (the synthetic sweeps are
-    # sparse: LiDAR alone stays near 0.1).
+    # sparse: LiDAR alone scores ~0).
     config = resolve_config("tiny", modality="fusion", epochs=12)
 
     untrained = tmp_path / "untrained"

@@ -2,7 +2,8 @@
 
 Writes RUN_DIR/predictions.parquet (the `graphs` table schema of docs/DATA.md, the format `cli score`
 reads) and RUN_DIR/metrics.json: the TOPO scores plus the parameter count, the frame rates (network
-only, and with post-processing: path selection and Path2Graph), the device and the config.
+only, and with post-processing: path selection and Path2Graph), the device, the config and, unless
+`floor=False`, the sensor-blind floor and the model's margin over it (baselines/floor.py).
 """
 
 from __future__ import annotations
@@ -14,12 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import torch
 from torch.utils.data import DataLoader
 
 from baselines.config import Config
 from baselines.data import PreparedDataset, collate
+from baselines.floor import blind_floor, floor_margins
 from baselines.lanegap import LaneGAP, select_paths
 from baselines.train import amp_settings
 from benchmark.metrics import MetricParams
@@ -53,8 +56,10 @@ def evaluate(
     split: str | None = None,
     device: str | None = None,
     warmup_frames: int = 5,
+    floor: bool = True,
 ) -> dict:
-    """Predict, run Path2Graph, score; returns (and writes) the metrics."""
+    """Predict, run Path2Graph, score, and score the blind floor (`floor`, baselines/floor.py); returns
+    (and writes) the metrics. The floor's prior search is cached in DATA/floor_cache."""
     run_dir = Path(run_dir)
     device_ = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     model, config = load_model(run_dir, device_)
@@ -98,7 +103,8 @@ def evaluate(
     # `cli score` scores every frame of the ground truth; here only the frames of this split.
     ground_truth = graphs_from_table(read_graph_table(Path(data_dir)), Path(data_dir))
     pairs = [(predictions[frame_id], ground_truth[frame_id]) for frame_id in sorted(predictions)]
-    scores = score_pairs(pairs, MetricParams(bev_range=default_range(Path(data_dir))))
+    metric_params = MetricParams(bev_range=default_range(Path(data_dir)))
+    scores = score_pairs(pairs, metric_params)
     scores.update(pred=str(run_dir / "predictions.parquet"), gt=str(data_dir), frames_predicted=len(pairs))
     timed = len(dataset) - warmup_frames
     metrics = {
@@ -110,7 +116,15 @@ def evaluate(
         "fps_net": timed / net_seconds if net_seconds else 0.0,
         "fps": timed / total_seconds if total_seconds else 0.0,
         "device": torch.cuda.get_device_name(device_) if device_.type == "cuda" else "cpu",
-        "config": config.to_dict(),
     }
+    if floor:
+        in_train = pc.field("split") == config.train.train_split
+        train_ids = io.read_table(Path(data_dir), "frames", ["frame_id"], in_train)["frame_id"].to_pylist()
+        metrics["floor"] = blind_floor(
+            predictions, ground_truth, dataset.frames, train_ids, config.train.train_split, metric_params,
+            Path(data_dir) / "floor_cache",
+        )  # fmt: skip
+        metrics["floor"]["margin"] = floor_margins(metrics) if metrics["floor"]["f1"] else None
+    metrics["config"] = config.to_dict()
     (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     return metrics

@@ -2,6 +2,9 @@
 
     out/av2/sensor/{train,val}/<log_id>/...   read by the av2 API
     out/nuscenes/{v1.0-mini,maps}/...         read by nuscenes-devkit (scene names from the mini splits)
+
+Logs spread over `worlds` procedural worlds (one nuScenes map location / AV2 city each); validation logs
+drive only in the last `val_worlds`, which no training log visits: a geographically disjoint split.
     out/synth.json                            what was written; "complete" turns true at the very end
 
 Neither devkit is imported here (they take seconds to import): the formats are written directly.
@@ -22,25 +25,31 @@ from pipeline.synth import av2_writer, nuscenes_map, nuscenes_writer
 from pipeline.synth.ids import token
 from pipeline.synth.logs import LogPlan, plan_logs
 from pipeline.synth.sensors import write_sensors
-from pipeline.synth.world import NUSCENES_MAP, build_world
+from pipeline.synth.world import MAX_WORLDS, World, build_world
 
 MARKER = "synth.json"
 
 
 def synth(
     out: Path,
-    logs: int = 4,
+    logs: int = 10,
     frames_per_log: int = 20,
     seed: int = 0,
     sensors: bool = True,
-    frame_period: float = 0.1,
+    frame_period: float = 1.0,
+    worlds: int = 4,
+    val_worlds: int = 1,
 ) -> dict:
     """Write the dataset into out (replacing an earlier synth output there) and return a summary;
     sensors=False leaves out the camera images and LiDAR sweeps (and the AV2 calibration);
-    frame_period: seconds between frames (10 Hz, as both datasets' sweeps, by default)."""
+    frame_period: seconds between frames (1 s: 20 frames cover much of a route; both datasets sweep at
+    10 Hz, 0.1 s). The defaults are the learning checks' data."""
     out = Path(out)
-    world = build_world(seed)
-    plans = plan_logs(world, logs, frames_per_log, seed, round(frame_period * 1e9))
+    if not 1 <= worlds <= MAX_WORLDS:
+        raise ValueError(f"worlds must be 1 to {MAX_WORLDS} (one nuScenes map location each), not {worlds}")
+    built = [build_world(seed, k) for k in range(worlds)]
+    plans = plan_logs(built, logs, frames_per_log, seed, round(frame_period * 1e9), val_worlds)
+    driven = sorted({plan.world for plan in plans})
     av2_root, nuscenes_root = out / "av2" / "sensor", out / "nuscenes"
     summary = {
         "complete": False,
@@ -51,23 +60,23 @@ def synth(
         "av2_root": str(av2_root.relative_to(out)),
         "nuscenes_root": str(nuscenes_root.relative_to(out)),
         "nuscenes_version": nuscenes_writer.VERSION,
-        "nuscenes_map": NUSCENES_MAP,
-        "lanes": len(world.lanes),
-        "logs": [_log_summary(plan) for plan in plans],
+        "worlds": [_world_summary(built[k], plans) for k in range(worlds)],
+        "logs": [_log_summary(plan, built[plan.world]) for plan in plans],
     }
     _clear(out)
     (out / MARKER).write_text(json.dumps(summary, indent=1))  # says "incomplete" until the end
-    prior = f"maps/{token(seed, 'semantic prior')}.png"
+    priors = {k: f"maps/{token(seed, 'semantic prior', k)}.png" for k in driven}
     channels = nuscenes_writer.channels(sensors)
-    with _LazyProgress(total=len(plans) + 2) as progress:
-        nuscenes_map.write_map(nuscenes_root, world, NUSCENES_MAP, prior)
-        progress.advance()
-        for plan in plans:
-            log_dir = av2_writer.write_log(av2_root, world, plan)
-            if sensors:
-                write_sensors(world, plan, log_dir, nuscenes_root)
+    with _LazyProgress(total=len(plans) + len(driven) + 1) as progress:
+        for k in driven:
+            nuscenes_map.write_map(nuscenes_root, built[k], built[k].nuscenes_map, priors[k])
             progress.advance()
-        nuscenes_writer.write_tables(nuscenes_root, world, plans, channels, NUSCENES_MAP, prior)
+        for plan in plans:
+            log_dir = av2_writer.write_log(av2_root, built[plan.world], plan)
+            if sensors:
+                write_sensors(built[plan.world], plan, log_dir, nuscenes_root)
+            progress.advance()
+        nuscenes_writer.write_tables(nuscenes_root, built, plans, channels, priors)
         progress.advance()
     summary["complete"] = True
     (out / MARKER).write_text(json.dumps(summary, indent=1))
@@ -75,9 +84,17 @@ def synth(
     return summary
 
 
-def _log_summary(plan: LogPlan) -> dict:
+def _log_summary(plan: LogPlan, world: World) -> dict:
     return {"split": plan.split, "log_id": plan.log_id, "scene": plan.scene_name, "route": plan.route.name,
+            "world": plan.world, "nuscenes_map": world.nuscenes_map,
             "frames": len(plan.frame_ns)}  # fmt: skip
+
+
+def _world_summary(world: World, plans: list[LogPlan]) -> dict:
+    splits = sorted({plan.split for plan in plans if plan.world == world.index})
+    return {"index": world.index, "nuscenes_map": world.nuscenes_map, "av2_city": world.av2_city,
+            "lanes": len(world.lanes), "junction_arms": world.landmarks.intersection_arms,
+            "roundabout_arms": len(world.landmarks.roundabout_entries), "splits": splits}  # fmt: skip
 
 
 def _clear(out: Path) -> None:
@@ -114,10 +131,11 @@ class _LazyProgress:
 
 
 def _print_summary(out: Path, summary: dict) -> None:
-    title = f"synth: {summary['lanes']} lanes, seed {summary['seed']} -> {out}"
+    title = f"synth: {len(summary['worlds'])} worlds, seed {summary['seed']} -> {out}"
     table = Table(title=title, title_justify="left")
-    for column in ("split", "AV2 log id", "nuScenes scene", "route", "frames"):
+    for column in ("split", "world", "AV2 log id", "nuScenes scene", "route", "frames"):
         table.add_column(column)
     for log in summary["logs"]:
-        table.add_row(log["split"], log["log_id"], log["scene"], log["route"], str(log["frames"]))
+        world = f"{log['world']} {log['nuscenes_map']}"
+        table.add_row(log["split"], world, log["log_id"], log["scene"], log["route"], str(log["frames"]))
     Console().print(table)

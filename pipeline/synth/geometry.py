@@ -173,3 +173,36 @@ def fillet(a: Pose, b: Pose) -> list[Piece]:
     if tb - tangent > 1e-6:
         pieces.append(straight(pieces[-1].end, tb - tangent))
     return pieces
+
+
+def arc_to(start: Pose, point: np.ndarray) -> Piece:
+    """The circular arc (or straight) leaving `start` along its heading and ending at `point`."""
+    chord = np.asarray(point, np.float64) - start.xy
+    tangent = np.array([math.cos(start.heading), math.sin(start.heading)])
+    half_turn = math.atan2(float(np.cross(tangent, chord)), float(tangent @ chord))
+    length = float(np.hypot(*chord))
+    if abs(half_turn) < 1e-12:
+        return straight(start, length)
+    return Piece(start, 2.0 * math.sin(half_turn) / length, length * half_turn / math.sin(half_turn))
+
+
+def biarc(a: Pose, b: Pose) -> list[Piece]:
+    """Two arcs from pose a to pose b with equal tangent lengths: joins any two poses smoothly, where a
+    fillet cannot (lanes that shift sideways through a junction, headings whose lines cross behind)."""
+    ta = np.array([math.cos(a.heading), math.sin(a.heading)])
+    tb = np.array([math.cos(b.heading), math.sin(b.heading)])
+    v, t = b.xy - a.xy, ta + tb
+    denominator = 2.0 * (1.0 - float(ta @ tb))  # 4 - |t|^2
+    if denominator < 1e-12:  # parallel headings: the S-curve's tangent lengths solve a linear equation
+        tangent = float(v @ v) / (4.0 * float(v @ ta))
+    else:
+        vt = float(v @ t)
+        tangent = (-vt + math.sqrt(vt * vt + denominator * float(v @ v))) / denominator
+    if not tangent > 0:
+        raise ValueError(f"no biarc from {a} to {b}")
+    join = (a.xy + tangent * ta + b.xy - tangent * tb) / 2.0
+    first = arc_to(a, join)
+    second = arc_to(first.end, b.xy)
+    if abs(wrap_angle(second.end.heading - b.heading)) > 1e-6:
+        raise ValueError(f"no biarc from {a} to {b}")
+    return [piece for piece in (first, second) if piece.length > 1e-9]

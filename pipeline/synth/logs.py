@@ -40,6 +40,7 @@ MINI_VAL = ["scene-0103", "scene-0916"]
 class LogPlan:
     index: int
     split: str  # "train" or "val"
+    world: int  # index of the world it drives in
     log_id: str  # AV2 log id
     scene_name: str  # nuScenes scene name
     route: Route
@@ -71,28 +72,55 @@ def split_of_logs(logs: int) -> list[str]:
     return ["train"] * (logs - val) + ["val"] * val
 
 
+def worlds_of_logs(splits: list[str], worlds: int, val_worlds: int) -> list[int]:
+    """The world of each log: training logs take turns over the first worlds - val_worlds worlds,
+    validation logs over the last val_worlds, so that validation is on geography training never sees."""
+    if not 1 <= val_worlds < worlds:
+        raise ValueError(f"val_worlds must be at least 1 and fewer than worlds ({worlds}), not {val_worlds}")
+    train_worlds = worlds - val_worlds
+    counts = {"train": 0, "val": 0}
+    out = []
+    for split in splits:
+        k = counts[split]
+        out.append(k % train_worlds if split == "train" else train_worlds + k % val_worlds)
+        counts[split] += 1
+    return out
+
+
 def plan_logs(
-    world: World, logs: int, frames_per_log: int, seed: int, frame_period_ns: int = FRAME_PERIOD_NS
+    worlds: list[World],
+    logs: int,
+    frames_per_log: int,
+    seed: int,
+    frame_period_ns: int = FRAME_PERIOD_NS,
+    val_worlds: int = 1,
 ) -> list[LogPlan]:
     """frame_period_ns: time between frames, a multiple of the pose period (10 Hz by default; longer
-    periods spread the same number of frames over more of each route)."""
+    periods spread the same number of frames over more of each route). With one world, training and
+    validation logs share it; with more, the last val_worlds hold the validation logs alone."""
     if frames_per_log < 1:
         raise ValueError("frames_per_log must be at least 1")
     if frame_period_ns <= 0 or frame_period_ns % POSE_PERIOD_NS:
         raise ValueError(f"the frame period must be a positive multiple of {POSE_PERIOD_NS / 1e9} s")
     rng = np.random.default_rng([seed, 2])
+    splits = split_of_logs(logs)
+    world_of = worlds_of_logs(splits, len(worlds), val_worlds) if len(worlds) > 1 else [0] * logs
     plans, names = [], {"train": iter(MINI_TRAIN), "val": iter(MINI_VAL)}
-    for index, split in enumerate(split_of_logs(logs)):
-        route = world.routes[index % len(world.routes)]
+    routes_taken = [0] * len(worlds)
+    for index, (split, w) in enumerate(zip(splits, world_of, strict=True)):
+        world = worlds[w]
+        route = world.routes[routes_taken[w] % len(world.routes)]
+        routes_taken[w] += 1
         path = Path(tuple(p for lane in route.lanes for p in world.lanes[lane].path.pieces))
         duration_s = ((frames_per_log - 1) * frame_period_ns + 2 * POSE_MARGIN_NS) * 1e-9
-        speed = min(
-            route.speed, (path.length - LEAD_GAP_M) / duration_s
-        )  # slow down rather than run out of road
+        # slow down rather than run out of road
+        speed = max(0.5, min(route.speed, (path.length - LEAD_GAP_M) / duration_s))
         stations = np.linspace(0.0, path.length, int(path.length / 0.25) + 1)
         focus = stations[np.hypot(*(path.at(stations)[:, :2] - np.array(route.focus)).T).argmin()]
         start = float(
-            np.clip(focus - speed * duration_s / 2, 0.0, path.length - LEAD_GAP_M - speed * duration_s)
+            np.clip(
+                focus - speed * duration_s / 2, 0.0, max(0.0, path.length - LEAD_GAP_M - speed * duration_s)
+            )
         )
         first_ns = (FIRST_LOG_S + 3600 * index) * 10**9 + int(
             rng.integers(0, 10**9)
@@ -105,6 +133,7 @@ def plan_logs(
             LogPlan(
                 index,
                 split,
+                w,
                 uuid_like(seed, "av2 log", index),
                 next(names[split]),
                 route,
@@ -139,7 +168,16 @@ def frame_cuboids(world: World, plan: LogPlan, max_distance: float = 50.0) -> li
     for ego, lead in zip(plan.ego_at(plan.frame_ns), plan.lead_at(plan.frame_ns), strict=True):
         objects = [(uuid_like(world.seed, "lead car", plan.index), True, *lead, 4.6, 1.9, 1.6)]
         objects += [
-            (uuid_like(world.seed, "parked car", i), False, c.x, c.y, c.heading, c.length, c.width, c.height)
+            (
+                uuid_like(world.seed, "parked car", world.index, i),
+                False,
+                c.x,
+                c.y,
+                c.heading,
+                c.length,
+                c.width,
+                c.height,
+            )
             for i, c in enumerate(world.parked_cars)
         ]
         cuboids = [

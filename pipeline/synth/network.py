@@ -12,10 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.synth.geometry import Path, Piece, Pose, fillet, turtle, wrap_angle
+from pipeline.synth.geometry import Path, Piece, Pose, biarc, fillet, turtle, wrap_angle
 
-LANE_WIDTH = 3.5
+LANE_WIDTH = 3.5  # the default; every road draws its own
 MAX_SEGMENT_M = 25.0  # reference length of a road's lane segments; lanes outside a curve grow by ~10%
+MIN_FILLET_RADIUS_M = 4.0  # tighter corners than this are drawn as a biarc
 
 
 @dataclass
@@ -57,6 +58,12 @@ class Road:
     forward: list[list[int]]  # [lane, innermost first][segment, in driving order]
     backward: list[list[int]]
     step_ends: list[int]  # index of the forward segment that ends each turtle step
+    width: float = LANE_WIDTH  # of every lane
+
+    @property
+    def half_widths(self) -> tuple[float, float]:
+        """How far the road's kerbs lie right (forward lanes) and left (backward lanes) of its reference."""
+        return len(self.forward) * self.width, len(self.backward) * self.width
 
     def port(self, at_start: bool) -> Port:
         if at_start:
@@ -107,7 +114,15 @@ class Network:
             self.link(a, b)
         return ids
 
-    def road(self, name: str, start: Pose, steps: list[tuple], forward: int = 1, backward: int = 1) -> Road:
+    def road(
+        self,
+        name: str,
+        start: Pose,
+        steps: list[tuple],
+        forward: int = 1,
+        backward: int = 1,
+        width: float = LANE_WIDTH,
+    ) -> Road:
         """Parallel lanes along the turtle reference line; every step is cut into segments of at most
         MAX_SEGMENT_M, cut at the same places on every lane so that neighbours line up."""
         reference = turtle(start, steps)
@@ -119,7 +134,7 @@ class Network:
         def lanes(count: int, sign: int) -> list[list[int]]:
             out = []
             for i in range(count):
-                offset = sign * (i + 0.5) * LANE_WIDTH
+                offset = sign * (i + 0.5) * width
                 pieces = [s.offset(offset) for s in segments]
                 if sign > 0:  # backward lanes drive against the reference line
                     pieces = [p.reversed() for p in reversed(pieces)]
@@ -131,6 +146,7 @@ class Network:
                         pieces,
                         left_mark=centre_mark if i == 0 else "DASHED_WHITE",
                         right_mark="SOLID_WHITE" if i == count - 1 else "DASHED_WHITE",
+                        width=width,
                     )
                 )
             for inner, outer in zip(out, out[1:], strict=False):
@@ -138,11 +154,20 @@ class Network:
                     self.lanes[a].right_neighbor, self.lanes[b].left_neighbor = b, a
             return out
 
-        return Road(name, reference, lanes(forward, -1), lanes(backward, +1), step_ends)
+        return Road(name, reference, lanes(forward, -1), lanes(backward, +1), step_ends, width)
 
     def connector(self, name: str, a: int, b: int) -> int:
-        """A junction lane from the end of a to the start of b."""
-        c = self.add(name, fillet(self.lanes[a].path.end, self.lanes[b].path.start), is_intersection=True)
+        """A junction lane from the end of a to the start of b: straight-arc-straight where the heading
+        lines cross ahead of both ends, else two arcs."""
+        start, end = self.lanes[a].path.end, self.lanes[b].path.start
+        try:
+            pieces = fillet(start, end)
+            if any(p.curvature and 1.0 / abs(p.curvature) < MIN_FILLET_RADIUS_M for p in pieces):
+                pieces = biarc(start, end)
+        except ValueError:
+            pieces = biarc(start, end)
+        width = (self.lanes[a].width + self.lanes[b].width) / 2
+        c = self.add(name, pieces, is_intersection=True, width=width)
         self.link(a, c)
         self.link(c, b)
         return c

@@ -1,16 +1,22 @@
-"""The synthetic world: a few hundred metres of road network holding every hard case of lane-graph targets.
+"""The synthetic worlds: a few hundred metres of road network per world, drawn from the seed, each holding
+every hard case of lane-graph targets.
 
-Layout (metres, before the seed-dependent shift to positive map coordinates; x east, y north):
+A world (metres; x east, y north; shifted to positive map coordinates at the end):
 
-- a 4-way intersection at (0, 0): a two-lane-each-way avenue (east-west) crosses a one-lane-each-way
-  street (north-south), with left, straight and right connectors and four pedestrian crossings;
-- the avenue east of it: an exit ramp forks off its outer eastbound lane at x=50 and, as a frontage
-  lane, merges back at x~111 (a fork and a merge);
-- the avenue west of it: a 90-degree two-lane-each-way curve (radius 50) to the south;
-- the street north of it ends in a roundabout (ring radius 11 m, centre (0, 90)) with four arms;
-- the street south of it ends in a T-junction with an east-west road at y=-130;
-- beside the street's southern part, a one-way side lane makes an S-bend whose middle segment bulges
-  out of the +-15 m lateral range of an ego driving north on the street and comes back.
+- a main junction of 4 or 5 arms at irregular angles; every road draws its lane counts per direction
+  (1-3) and lane width (3.0-3.8 m); straight connectors lane by lane, left turns from the innermost
+  lane, right turns from the outermost, with pedestrian crossings on every arm;
+- one arm leads to a one-lane roundabout (ring radius 9.5-12 m, 3-5 arms at irregular angles);
+- one arm leads to a T-junction whose cross road meets it at 75-105 degrees;
+- one arm carries an exit ramp that forks off its outer lane and merges back (a fork and a merge);
+- one arm curves (radius 35-70 m, 50-100 degrees, either way);
+- beside the T-junction's arm, a one-way side lane makes an S-bend whose middle segment bulges out of
+  the +-15 m lateral range of an ego in the road's outer lane and comes back;
+- a fifth arm, when drawn, is a plain straight road; parked cars and street lights along the kerbs.
+
+A draw whose roads overlap (other than where they join) is drawn again from the same generator.
+Routes are random walks through the lane graph around a focus (a turn, the ring, the ramp, the bend,
+any lane of any road in either direction), so that the ego drives in every lane.
 """
 
 from __future__ import annotations
@@ -19,16 +25,19 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import shapely
 
 from pipeline.synth.geometry import Pose, turtle
 from pipeline.synth.ids import uuid_like
-from pipeline.synth.network import LANE_WIDTH, Network, Road, WorldLane, arm_distance
+from pipeline.synth.network import Network, Road, WorldLane, arm_distance
 
-AV2_CITY = "PIT"  # Pittsburgh and Boston drive on the right, like this world
-NUSCENES_MAP = "boston-seaport"
+# One world per map location: nuScenes has four, AV2 names its cities. Every world drives on the right.
+NUSCENES_MAPS = ("boston-seaport", "singapore-onenorth", "singapore-hollandvillage", "singapore-queenstown")
+AV2_CITIES = ("PIT", "WDC", "MIA", "ATX")
+MAX_WORLDS = len(NUSCENES_MAPS)
 MAP_MARGIN_M = 60.0  # empty map around the roads
-RING_RADIUS = 11.0
 ENTRY_RADIUS = 6.0
+MAX_LANES_PER_WORLD = 1000  # lane ids of world k are (base + k) * 1000 + i
 SIDES = ("left", "right")
 
 
@@ -56,7 +65,7 @@ class Crosswalk:
 class Route:
     """Where one log drives: consecutive lane ids; its frames centre on the route point nearest focus."""
 
-    name: str
+    name: str  # the kind of focus: "junction_left", "roundabout", "fork", "s_bend", "road", ...
     lanes: list[int]
     focus: tuple[float, float]
     speed: float  # m/s
@@ -67,6 +76,7 @@ class Landmarks:
     """The hard cases, in world coordinates, for tests to find."""
 
     intersection_centre: tuple[float, float]
+    intersection_arms: int  # 4 or 5
     intersection_connectors: dict[str, list[int]]  # "left", "straight", "right" -> lane ids
     t_junction_centre: tuple[float, float]
     t_junction_connectors: dict[str, list[int]]
@@ -76,19 +86,20 @@ class Landmarks:
     roundabout_entries: list[int]
     roundabout_exits: list[int]
     roundabout_view: Pose  # ego pose (on the approach) with the whole ring inside the 30 x 60 m crop
-    fork_lane: int  # the avenue lane where the exit ramp leaves: two successors
-    fork_branches: list[int]  # [avenue lane, ramp lane]
-    merge_lane: int  # the avenue lane where the ramp comes back: two predecessors
-    merge_sources: list[int]  # [avenue lane, ramp lane]
+    fork_lane: int  # the lane where the exit ramp leaves: two successors
+    fork_branches: list[int]  # [road lane, ramp lane]
+    merge_lane: int  # the lane where the ramp comes back: two predecessors
+    merge_sources: list[int]  # [road lane, ramp lane]
     ramp_lanes: list[int]  # the frontage lane from fork to merge, in driving order
     reentering_lane: int  # one lane segment that leaves the +-15 m lateral range and comes back
-    reentering_view: Pose  # ego pose from which reentering_lane does so (the bulge is 1.3 m outside)
-    curved_road_lanes: list[int]  # every lane segment of the avenue's 90-degree curve
+    reentering_view: Pose  # ego pose from which reentering_lane does so
+    curved_road_lanes: list[int]  # every lane segment of the curved arm's arc
 
 
 @dataclass
 class World:
     seed: int
+    index: int  # which world of the seed's dataset
     lanes: dict[int, WorldLane]  # by AV2 lane segment id, ascending
     landmarks: Landmarks
     routes: list[Route]
@@ -97,199 +108,375 @@ class World:
     poles: list[tuple[float, float]]  # street lights beside the roads (LiDAR clutter)
     canvas: tuple[float, float]  # the map covers [0, w] x [0, h]
 
+    @property
+    def nuscenes_map(self) -> str:
+        return NUSCENES_MAPS[self.index]
+
+    @property
+    def av2_city(self) -> str:
+        return AV2_CITIES[self.index]
+
     def token_of(self, lane_id: int) -> str:
         """The nuScenes token of a lane (a uuid, like the tokens of the real map expansion)."""
         return uuid_like(self.seed, "lane", lane_id)
 
 
-def build_world(seed: int = 0) -> World:
-    rng = np.random.default_rng([seed, 1])
-    ox, oy = 140.0 + rng.uniform(0, 20), 195.0 + rng.uniform(0, 20)  # positive nuScenes map coordinates
-
-    def at(x: float, y: float, degrees: float) -> Pose:
-        return Pose(ox + x, oy + y, math.radians(degrees))
-
-    net = Network(first_id=int(rng.integers(20_000, 80_000)) * 1000)  # 8-digit ids, like AV2
-
-    # 4-way intersection: roads start at its edges and lead away from it
-    av_east = net.road(
-        "avenue_east",
-        at(9.5, 0, 0),
-        [("S", 40.5), ("S", 4 * 30 * math.sin(math.radians(25)) + 10), ("S", 49.3)],
-        forward=2,
-        backward=2,
-    )
-    av_west = net.road(
-        "avenue_west", at(-9.5, 0, 180), [("S", 10), ("L", 50, 90), ("S", 50)], forward=2, backward=2
-    )
-    ring_centre = at(0, 90, 0)
-    arm = arm_distance(RING_RADIUS, ENTRY_RADIUS, LANE_WIDTH / 2)
-    st_north = net.road("street_north", at(0, 13, 90), [("S", 90 - arm - 13)])
-    st_south = net.road("street_south", at(0, -13, -90), [("S", 130 - 13 - 9.5)])
-    x_turns = net.junction(
-        "intersection", [av_east.port(True), st_north.port(True), av_west.port(True), st_south.port(True)]
-    )
-
-    # roundabout at the street's north end, three short arms
-    arms = [
-        net.road(
-            f"arm_{name}",
-            at(arm * math.cos(math.radians(d)), 90 + arm * math.sin(math.radians(d)), d),
-            [("S", 40)],
+def build_world(seed: int = 0, index: int = 0) -> World:
+    """World `index` of the dataset drawn with `seed`: the same pair always gives the same world."""
+    if not 0 <= index < MAX_WORLDS:
+        raise ValueError(f"world index must be 0 to {MAX_WORLDS - 1} (one nuScenes map location each)")
+    first_id = (int(np.random.default_rng([seed, 0]).integers(20_000, 70_000)) + index) * 1000
+    rng = np.random.default_rng([seed, 1, index])
+    for _ in range(100):
+        state = rng.bit_generator.state
+        draft = _draw(rng, first_id, (0.0, 0.0))
+        if draft is None:
+            continue
+        # the same draw again, shifted so that the map starts MAP_MARGIN_M from the roads
+        low = np.concatenate(
+            [lane.boundary(s).points()[:, :2] for lane in draft.net.lanes.values() for s in SIDES]
         )
-        for name, d in (("east", 0), ("north", 90), ("west", 180))
+        rng.bit_generator.state = state
+        parts = _draw(rng, first_id, tuple(MAP_MARGIN_M - low.min(axis=0)))
+        assert parts is not None and len(parts.net.lanes) < MAX_LANES_PER_WORLD
+        return _world(seed, index, parts, np.random.default_rng([seed, 4, index]))
+    raise RuntimeError(f"no non-overlapping layout in 100 draws (seed {seed}, world {index})")
+
+
+@dataclass
+class _Parts:
+    net: Network
+    landmarks: Landmarks
+    route_foci: dict[str, list[tuple[int, tuple[float, float]]]]  # kind -> (focus lane, focus point)
+    kerbs: list[tuple[Road, int, str]]  # (road, side, "cars" or "poles"); side -1 is right of the reference
+    crossing_roads: list[Road]  # roads with a crossing at their start
+
+
+def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) -> _Parts | None:
+    """One layout with the main junction at origin, or None when its roads overlap."""
+    net = Network(first_id=first_id)
+    ox, oy = origin
+
+    def lanes() -> int:
+        return int(rng.integers(1, 4))
+
+    def width() -> float:
+        return float(rng.uniform(3.0, 3.8))
+
+    def along(pose: Pose, distance: float, left: float = 0.0) -> Pose:
+        c, s = math.cos(pose.heading), math.sin(pose.heading)
+        return Pose(pose.x + distance * c - left * s, pose.y + distance * s + left * c, pose.heading)
+
+    # main junction: 4 or 5 arms, at irregular angles, each with its role
+    count = int(rng.choice([4, 5]))
+    headings = (
+        rng.uniform(0, 2 * math.pi)
+        + np.arange(count) * 2 * math.pi / count
+        + rng.uniform(-1, 1, count) * math.radians(12)
+    )
+    roles = ["roundabout", "t_junction", "ramp", "curve", "plain"][:count]
+    roles = [roles[i] for i in rng.permutation(count)]
+    spec = {  # role -> (forward lanes, backward lanes, width): the roundabout takes one lane each way
+        role: (1, 1, width()) if role == "roundabout" else (lanes(), lanes(), width()) for role in roles
+    }
+    half = [max(spec[r][0], spec[r][1]) * spec[r][2] for r in roles]
+    gaps = np.diff(np.append(headings, headings[0] + 2 * math.pi))
+    # far enough out that neighbouring arms' kerbs do not meet: a kerb at half width h clears the
+    # neighbour's axis at h / tan(gap / 2)
+    distance = max(max(half[i], half[(i + 1) % count]) / math.tan(gaps[i] / 2) + 3.0 for i in range(count))
+    arms: dict[str, Road] = {}
+    foci: dict[str, list] = {}
+    kerbs: list[tuple[Road, int, str]] = []
+    for role, heading in zip(roles, headings, strict=True):
+        start = along(Pose(ox, oy, float(heading)), distance)
+        forward, backward, lane_width = spec[role]
+        if role == "roundabout":
+            steps = [("S", rng.uniform(45, 75))]
+        elif role == "t_junction":
+            steps = [("S", rng.uniform(90, 120))]
+        elif role == "ramp":
+            fork_at, rest = rng.uniform(25, 40), rng.uniform(20, 40)
+            ramp_angle = math.radians(rng.uniform(20, 30))
+            lateral = rng.uniform(forward * 0 + lane_width + 1.5, lane_width + 4.0)  # how far out it swings
+            ramp_radius = lateral / (2 * (1 - math.cos(ramp_angle)))
+            ramp_straight = rng.uniform(6, 20)
+            span = 4 * ramp_radius * math.sin(ramp_angle) + ramp_straight
+            steps = [("S", fork_at), ("S", span), ("S", rest)]
+        elif role == "curve":
+            turn = "L" if rng.random() < 0.5 else "R"
+            steps = [("S", rng.uniform(10, 20)), (turn, rng.uniform(35, 70), rng.uniform(50, 100)),
+                     ("S", rng.uniform(30, 50))]  # fmt: skip
+        else:
+            steps = [("S", rng.uniform(60, 90))]
+        arms[role] = net.road(role, start, steps, forward, backward, lane_width)
+    ports = [arms[role].port(True) for role in roles]
+    junction = net.junction("intersection", ports)
+
+    # the roundabout at the end of its arm: its axis arrives from the junction
+    street = arms["roundabout"]
+    ring_radius = float(rng.uniform(9.5, 12.0))
+    arm_out = arm_distance(ring_radius, ENTRY_RADIUS, street.width / 2)
+    street_end = street.reference[-1].end
+    ring_centre = along(street_end, arm_out)
+    # the other arms' outward headings: at least min_gap apart (ring segments of >= 5 m between them)
+    theta = math.atan2(street.width / 2 + ENTRY_RADIUS, arm_out)
+    min_gap = 2 * theta + 5.0 / ring_radius
+    ring_arms = int(rng.integers(3, 6))
+    back = street_end.heading + math.pi  # the street's outward heading, seen from the ring
+    spread = (2 * math.pi - min_gap * ring_arms) / ring_arms
+    if spread < 0:
+        return None
+    outward = back + np.cumsum(min_gap + rng.uniform(0, 1, ring_arms - 1) * spread)
+    roundabout_arms = [
+        net.road(
+            f"roundabout_arm{k}",
+            along(Pose(ring_centre.x, ring_centre.y, float(h)), arm_out),
+            [("S", rng.uniform(30, 45))],
+            1,
+            1,
+            street.width,
+        )  # fmt: skip
+        for k, h in enumerate(outward)
     ]
     ring = net.roundabout(
-        "roundabout",
-        ring_centre,
-        RING_RADIUS,
-        ENTRY_RADIUS,
-        [st_north.port(False)] + [a.port(True) for a in arms],
+        "roundabout", ring_centre, ring_radius, ENTRY_RADIUS,
+        [street.port(False)] + [a.port(True) for a in roundabout_arms],
+    )  # fmt: skip
+    view = along(
+        Pose(ring_centre.x, ring_centre.y, street_end.heading), -(ring_radius + 6.0), -street.width / 2
     )
 
-    # T-junction at the street's south end
-    road_e_west = net.road("road_e_west", at(-9.5, -130, 180), [("S", 70.5)])
-    road_e_east = net.road("road_e_east", at(9.5, -130, 0), [("S", 70.5)])
-    t_turns = net.junction(
-        "t_junction", [road_e_east.port(True), st_south.port(False), road_e_west.port(True)]
-    )
+    # the T-junction at the end of its arm, its cross road at 75-105 degrees
+    stem = arms["t_junction"]
+    stem_end = stem.reference[-1].end
+    cross_lanes, cross_width = int(rng.integers(1, 3)), width()
+    t_distance = max(stem.half_widths) + cross_lanes * cross_width + 3.0
+    t_centre = along(stem_end, t_distance)
+    cross = stem_end.heading + math.radians(rng.uniform(75, 105))
+    cross_roads = []
+    for name, heading in (
+        ("t_cross_left", cross),
+        ("t_cross_right", cross + math.pi + rng.uniform(-0.15, 0.15)),
+    ):
+        start = along(Pose(t_centre.x, t_centre.y, heading), t_distance)
+        cross_roads.append(net.road(name, start, [("S", rng.uniform(45, 70))], cross_lanes, cross_lanes,
+                                    cross_width))  # fmt: skip
+    t_turns = net.junction("t_junction", [stem.port(False)] + [r.port(True) for r in cross_roads])
 
-    # exit ramp from the avenue's outer eastbound lane, back as an on-ramp 61 m later
-    outer = av_east.forward[1]
-    fork_lane, merge_lane = outer[av_east.step_ends[0]], outer[av_east.step_ends[1] + 1]
-    ramp_steps = [("R", 30, 25), ("L", 30, 25), ("S", 10), ("L", 30, 25), ("R", 30, 25)]
-    ramp = net.chain(
-        "frontage",
-        turtle(net.lanes[fork_lane].path.end, ramp_steps),
-        left_mark="SOLID_WHITE",
-        right_mark="SOLID_WHITE",
-    )
+    # the exit ramp from the ramp arm's outer forward lane, back after `span`
+    ramp_arm = arms["ramp"]
+    outer = ramp_arm.forward[-1]
+    fork_lane, merge_lane = outer[ramp_arm.step_ends[0]], outer[ramp_arm.step_ends[1] + 1]
+    ramp_steps = [("R", ramp_radius, math.degrees(ramp_angle)), ("L", ramp_radius, math.degrees(ramp_angle)),
+                  ("S", ramp_straight), ("L", ramp_radius, math.degrees(ramp_angle)),
+                  ("R", ramp_radius, math.degrees(ramp_angle))]  # fmt: skip
+    ramp = net.chain("frontage", turtle(net.lanes[fork_lane].path.end, ramp_steps),
+                     left_mark="SOLID_WHITE", right_mark="SOLID_WHITE", width=ramp_arm.width)  # fmt: skip
     net.link(fork_lane, ramp[0])
     net.link(ramp[-1], merge_lane)
 
-    # S-bend side lane east of the street: its middle arc bulges 16.3 m right of a northbound ego
-    bend_r, bend_deg = 24.0, 35.0
-    bulge = bend_r * (1 - math.cos(math.radians(bend_deg)))
-    side_x = LANE_WIDTH / 2 + 12.0 - bulge  # the middle arc starts and ends 12 m right of the ego lane
-    side = net.chain(
-        "side_lane",
-        turtle(
-            at(side_x, -118, 90),
-            [
-                ("S", 5),
-                ("R", bend_r, bend_deg),
-                ("L", bend_r, 2 * bend_deg),
-                ("R", bend_r, bend_deg),
-                ("S", 15),
-            ],
-        ),
-        left_mark="SOLID_YELLOW",
-        right_mark="SOLID_WHITE",
+    # the S-bend side lane right of the T-junction arm's outer forward lane: its middle arc starts and
+    # ends `gap` metres right of that lane's centre and bulges `bulge` metres further out
+    bend_deg = float(rng.uniform(30, 40))
+    bulge = float(rng.uniform(3.8, 5.5))
+    bend_radius = bulge / (1 - math.cos(math.radians(bend_deg)))
+    gap = float(rng.uniform(11.8, 12.8))
+    ego_offset = -(len(stem.forward) - 0.5) * stem.width  # the outer forward lane, left of the reference
+    bend_start = along(stem.reference[0].start, rng.uniform(20, 35), ego_offset - (gap - bulge))
+    bend = turtle(bend_start, [("S", 5), ("R", bend_radius, bend_deg), ("L", bend_radius, 2 * bend_deg),
+                               ("R", bend_radius, bend_deg), ("S", 15)])  # fmt: skip
+    peak = bend[2].at(bend[2].length / 2)[0]
+    if rng.random() < 0.5:  # either driving direction
+        bend = [piece.reversed() for piece in reversed(bend)]
+    side = net.chain("side_lane", bend, left_mark="SOLID_YELLOW", right_mark="SOLID_WHITE", width=width())
+    reentering = side[2]
+    # the ego in the outer forward lane, level with the bulge's peak
+    station = float(
+        (peak[:2] - stem.reference[0].start.xy) @ [math.cos(stem_end.heading), math.sin(stem_end.heading)]
     )
-    peak_y = -118 + 5 + 2 * bend_r * math.sin(math.radians(bend_deg))
+    reentering_view = along(stem.reference[0].start, station, ego_offset)
 
-    curve = [
-        i
-        for lanes in av_west.forward + av_west.backward
-        for i in lanes
-        if net.lanes[i].path.pieces[0].curvature
-    ]
+    curve_arm = arms["curve"]
+    curve = sorted(i for lanes_ in curve_arm.forward + curve_arm.backward for i in lanes_
+                   if net.lanes[i].path.pieces[0].curvature)  # fmt: skip
+    if _overlaps(net):
+        return None
+
     landmarks = Landmarks(
         intersection_centre=(ox, oy),
-        intersection_connectors=x_turns,
-        t_junction_centre=(ox, oy - 130),
+        intersection_arms=count,
+        intersection_connectors=junction,
+        t_junction_centre=(t_centre.x, t_centre.y),
         t_junction_connectors=t_turns,
         roundabout_centre=ring.centre,
         roundabout_radius=ring.radius,
         ring_lanes=ring.ring,
         roundabout_entries=ring.entries,
         roundabout_exits=ring.exits,
-        roundabout_view=at(LANE_WIDTH / 2, 90 - 17.5, 90),
+        roundabout_view=view,
         fork_lane=fork_lane,
         fork_branches=list(net.lanes[fork_lane].successors),
         merge_lane=merge_lane,
         merge_sources=list(net.lanes[merge_lane].predecessors),
         ramp_lanes=ramp,
-        reentering_lane=side[2],
-        reentering_view=at(LANE_WIDTH / 2, peak_y, 90),
-        curved_road_lanes=sorted(curve),
+        reentering_lane=reentering,
+        reentering_view=reentering_view,
+        curved_road_lanes=curve,
     )
 
-    def middle(lane: int) -> tuple[float, float]:
+    def middle(lane: int) -> tuple[int, tuple[float, float]]:
         path = net.lanes[lane].path
-        return tuple(float(v) for v in path.at(path.length / 2)[0, :2])
+        return lane, tuple(float(v) for v in path.at(path.length / 2)[0, :2])
 
-    def route(name: str, focus: tuple[float, float], speed: float, *waypoints: int) -> Route:
-        return Route(name, net.route(*waypoints), focus, speed)
+    plain = [i for i, lane in net.lanes.items() if not lane.is_intersection]
+    ego_lane = min(
+        stem.forward[-1],
+        key=lambda i: np.hypot(
+            *(net.lanes[i].centerline()[:, :2] - [reentering_view.x, reentering_view.y]).T
+        ).min(),
+    )  # noqa: E501
+    foci = {
+        "junction_left": [middle(i) for i in junction["left"]],
+        "junction_right": [middle(i) for i in junction["right"]],
+        "junction_straight": [middle(i) for i in junction["straight"]],
+        "t_junction_turn": [middle(i) for i in t_turns["left"] + t_turns["right"]],
+        "roundabout": [(street.forward[0][-1], (view.x, view.y))],
+        "roundabout_through": [middle(i) for i in ring.entries],
+        "fork": [(ramp[0], tuple(float(v) for v in net.lanes[fork_lane].path.end.xy))],
+        "merge": [(merge_lane, tuple(float(v) for v in net.lanes[merge_lane].path.start.xy))],
+        "s_bend": [(ego_lane, (reentering_view.x, reentering_view.y))],
+        "curve": [middle(i) for i in curve],
+        "road": [middle(i) for i in plain],
+    }
+    kerbs = [(road, -1, "cars") for road in cross_roads + roundabout_arms[:1]]
+    kerbs += [(arms["plain"], -1, "cars")] if "plain" in arms else []
+    kerbs += [(road, 1, "poles") for road in [*arms.values(), *cross_roads]]
+    kerbs += [(stem, 1, "cars")]
+    crossing_roads = [*arms.values(), *cross_roads]
+    return _Parts(net, landmarks, foci, kerbs, crossing_roads)
 
-    # the first four are the default logs (3 train, 1 val); together they see every hard case
-    north_in, north_out = st_north.forward[0], st_north.backward[0]
-    south_in, south_out = st_south.backward[0], st_south.forward[0]
-    x_centre, t_centre = landmarks.intersection_centre, landmarks.t_junction_centre
-    routes = [
-        route("intersection_left_turn", x_centre, 8.0, av_west.backward[0][0], north_in[-1]),
-        route("roundabout", _xy(landmarks.roundabout_view), 6.0, north_in[0], arms[2].forward[0][-1]),
-        route("fork_and_merge", (ox + 80, oy - 5.25), 12.0, outer[0], outer[-1]),
-        route("t_junction_and_s_bend", (ox + LANE_WIDTH / 2, oy - 105), 8.0, road_e_west.backward[0][0],
-              south_in[-1]),
-        route("frontage_ramp", middle(ramp[2]), 10.0, outer[0], ramp[2], outer[-1]),
-        route("curved_avenue", middle(av_west.forward[0][av_west.step_ends[1]]), 10.0, av_east.backward[0][0],
-              av_west.forward[0][-1]),
-        route("intersection_right_turn", x_centre, 7.0, south_in[0], outer[-1]),
-        route("roundabout_from_east", (ox + 17.5, oy + 90 + LANE_WIDTH / 2), 6.0, arms[0].backward[0][0],
-              north_out[-1], south_out[-1]),
-        route("s_bend", _xy(landmarks.reentering_view), 10.0, south_in[0], south_in[-1]),
-        route("t_junction_right_turn", t_centre, 7.0, south_out[0], road_e_west.forward[0][-1]),
-    ]  # fmt: skip
 
-    crosswalks = [_crosswalk(road) for road in (av_east, st_north, av_west, st_south)]
-    kerbs = [(st_south, -1), (st_south, 1), (st_north, 1), (road_e_west, -1), (road_e_east, -1)]
-    cars = _parked_cars(rng, kerbs + [(arms[0], -1)])  # side -1: right of the reference line
-    poles = _poles([(av_east, 1), (st_north, -1), (st_south, 1), (road_e_west, 1), (road_e_east, 1)])
+def _overlaps(net: Network, clearance: float = 0.5) -> bool:
+    """Whether lanes of two groups (a road, a junction, the ramp...) that are not linked come within
+    `clearance` of each other's lane area: such a layout would put two roads on top of each other."""
+    group = {i: lane.name.split("/")[0] for i, lane in net.lanes.items()}
+    linked = {frozenset((group[i], group[j])) for i, lane in net.lanes.items() for j in lane.successors}
+    names = sorted(set(group.values()))
+    areas = {
+        name: shapely.union_all([
+            shapely.LineString(lane.centerline(1.0)[:, :2]).buffer(
+                lane.width / 2 + clearance / 2, cap_style="flat")
+            for i, lane in net.lanes.items() if group[i] == name
+        ])
+        for name in names
+    }  # fmt: skip
+    for a_index, a in enumerate(names):
+        for b in names[a_index + 1 :]:
+            if frozenset((a, b)) not in linked and areas[a].intersects(areas[b]):
+                return True
+    return False
+
+
+def _world(seed: int, index: int, parts: _Parts, rng: np.random.Generator) -> World:
+    net = parts.net
+    lanes_area = shapely.union_all(
+        [
+            shapely.LineString(lane.centerline(1.0)[:, :2]).buffer(lane.width / 2)
+            for lane in net.lanes.values()
+        ]
+    )
+    cars = [
+        car for road, side, what in parts.kerbs if what == "cars" for car in _parked_cars(rng, road, side)
+    ]
+    cars = [car for car in cars if not _footprint(car).intersects(lanes_area)]
+    poles = [p for road, side, what in parts.kerbs if what == "poles" for p in _poles(road, side)]
+    poles = [p for p in poles if lanes_area.distance(shapely.Point(p)) > 0.5]
+    crosswalks = [_crosswalk(road) for road in parts.crossing_roads]
     xy = np.concatenate([net.lanes[i].boundary(side).points()[:, :2] for i in net.lanes for side in SIDES])
     canvas = tuple(float(math.ceil(v + MAP_MARGIN_M)) for v in xy.max(axis=0))
     assert xy.min() > MAP_MARGIN_M / 2, "the map must stay in positive coordinates"
-    return World(seed, dict(sorted(net.lanes.items())), landmarks, routes, cars, crosswalks, poles, canvas)
+    routes = _routes(net, parts.route_foci, rng)
+    return World(seed, index, dict(sorted(net.lanes.items())), parts.landmarks, routes, cars, crosswalks,
+                 poles, canvas)  # fmt: skip
 
 
-def _xy(pose: Pose) -> tuple[float, float]:
-    return pose.x, pose.y
+ROUTE_LENGTH_M = 260.0  # enough for 20 frames 1 s apart at 12 m/s, plus the lead car's gap
+
+
+def _routes(net: Network, foci: dict[str, list], rng: np.random.Generator) -> list[Route]:
+    """One route per kind of focus, in an order drawn per world, then a second round: each a random walk
+    through a random focus lane of its kind (backwards and forwards, no lane twice)."""
+    kinds = list(foci)
+    order = [kinds[i] for i in rng.permutation(len(kinds))]
+    routes = []
+    for kind in order + [kinds[i] for i in rng.permutation(len(kinds))]:
+        lane, focus = foci[kind][int(rng.integers(len(foci[kind])))]
+        lanes = _walk(net, lane, rng)
+        routes.append(Route(kind, lanes, focus, float(rng.uniform(6.0, 12.0))))
+    return routes
+
+
+def _walk(net: Network, focus: int, rng: np.random.Generator) -> list[int]:
+    """Lanes through `focus`: a random walk of about half the route length back, and on forward."""
+    lanes, seen = [focus], {focus}
+    for forward in (False, True):
+        length, lane = 0.0, focus
+        while length < ROUTE_LENGTH_M / 2:
+            options = [i for i in (net.lanes[lane].successors if forward else net.lanes[lane].predecessors)
+                       if i not in seen]  # fmt: skip
+            if not options:
+                break
+            lane = options[int(rng.integers(len(options)))]
+            seen.add(lane)
+            length += net.lanes[lane].path.length
+            if forward:
+                lanes.append(lane)
+            else:
+                lanes.insert(0, lane)
+    return lanes
+
+
+def _footprint(box: Box) -> shapely.Polygon:
+    c, s = math.cos(box.heading), math.sin(box.heading)
+    corners = [(a * box.length / 2, b * box.width / 2) for a, b in ((1, 1), (-1, 1), (-1, -1), (1, -1))]
+    return shapely.Polygon([(box.x + c * u - s * v, box.y + s * u + c * v) for u, v in corners])
 
 
 def _crosswalk(road: Road) -> Crosswalk:
     """A 3 m wide crossing over a road, 0.5 m past the junction edge where it starts."""
     start = road.reference[0].start
-    half_width = LANE_WIDTH * max(len(road.forward), len(road.backward))
+    right, left = road.half_widths
     along = np.array([math.cos(start.heading), math.sin(start.heading)])
-    across = np.array([-along[1], along[0]]) * (half_width + 0.5)
-    edges = [np.stack([start.xy + d * along - across, start.xy + d * along + across]) for d in (0.5, 3.5)]
+    across = np.array([-along[1], along[0]])
+    edges = [np.stack([start.xy + d * along - across * (right + 0.5),
+                       start.xy + d * along + across * (left + 0.5)]) for d in (0.5, 3.5)]  # fmt: skip
     return Crosswalk(*edges)
 
 
-def _parked_cars(rng: np.random.Generator, kerbs: list[tuple[Road, int]]) -> list[Box]:
-    """Three cars per kerb, at distinct 8 m slots along the road, beside its outermost lane."""
+def _parked_cars(rng: np.random.Generator, road: Road, side: int) -> list[Box]:
+    """Up to three cars at distinct 8 m slots along the road's first piece, beside its outermost lane."""
     cars = []
-    for road, side in kerbs:
-        reference = road.reference[0]
-        lanes = len(road.backward if side > 0 else road.forward)
-        slots = np.sort(rng.choice(int(reference.length // 8) - 1, size=3, replace=False)) * 8.0 + 6.0
-        for s in slots:
-            x, y, heading = reference.at(s)[0]
-            left = side * (lanes * LANE_WIDTH + 1.2)  # beside the outermost lane's kerb
-            x, y = x - left * math.sin(heading), y + left * math.cos(heading)
-            heading += math.pi if side > 0 else 0.0  # parked in the driving direction of that side
-            length, width, height = rng.uniform(4.3, 4.9), rng.uniform(1.8, 1.95), rng.uniform(1.45, 1.7)
-            cars.append(Box(*(float(v) for v in (x, y, heading, length, width, height))))
+    reference = road.reference[0]
+    slots = int(reference.length // 8) - 1
+    if slots < 1:
+        return cars
+    kerb = road.half_widths[0 if side < 0 else 1]
+    for s in np.sort(rng.choice(slots, size=min(3, slots), replace=False)) * 8.0 + 6.0:
+        x, y, heading = reference.at(s)[0]
+        left = side * (kerb + 1.2)  # beside the outermost lane's kerb
+        x, y = x - left * math.sin(heading), y + left * math.cos(heading)
+        heading += math.pi if side > 0 else 0.0  # parked in the driving direction of that side
+        length, width, height = rng.uniform(4.3, 4.9), rng.uniform(1.8, 1.95), rng.uniform(1.45, 1.7)
+        cars.append(Box(*(float(v) for v in (x, y, heading, length, width, height))))
     return cars
 
 
-def _poles(kerbs: list[tuple[Road, int]], spacing: float = 30.0) -> list[tuple[float, float]]:
+def _poles(road: Road, side: int, spacing: float = 30.0) -> list[tuple[float, float]]:
     """Street lights every `spacing` metres, 2.5 m outside the kerb."""
     poles = []
-    for road, side in kerbs:
-        reference = road.reference[0]
-        lanes = len(road.backward if side > 0 else road.forward)
-        for x, y, heading in reference.at(np.arange(5.0, reference.length, spacing)):
-            left = side * (lanes * LANE_WIDTH + 2.5)
+    kerb = road.half_widths[0 if side < 0 else 1]
+    for piece in road.reference:
+        for x, y, heading in piece.at(np.arange(5.0, piece.length, spacing)):
+            left = side * (kerb + 2.5)
             poles.append((float(x - left * math.sin(heading)), float(y + left * math.cos(heading))))
     return poles

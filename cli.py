@@ -26,17 +26,27 @@ def reported_errors():
 @app.command()
 def synth(
     out: Path = typer.Option(..., help="Folder to write <out>/av2/sensor/... and <out>/nuscenes/..."),
-    logs: int = typer.Option(4, help="Logs (AV2) / scenes (nuScenes) to write"),
+    logs: int = typer.Option(10, help="Logs (AV2) / scenes (nuScenes) to write: 3/4 train, the rest val"),
     frames_per_log: int = typer.Option(20, help="Key frames per log"),
-    frame_period: float = typer.Option(0.1, help="Seconds between key frames (a multiple of 0.02)"),
-    seed: int = typer.Option(0, help="Random seed; the same seed writes the same bytes"),
+    frame_period: float = typer.Option(1.0, help="Seconds between key frames (a multiple of 0.02)"),
+    worlds: int = typer.Option(4, help="Procedural worlds (1-4), one nuScenes map location / AV2 city each"),
+    val_worlds: int = typer.Option(1, help="Worlds that only validation logs drive in (unseen geography)"),
+    seed: int = typer.Option(0, help="Random seed of the worlds, routes and sensors: same seed, same bytes"),
     sensors: bool = typer.Option(True, help="Also render camera images and LiDAR sweeps"),
 ) -> None:
-    """Write a tiny synthetic raw dataset in the real AV2 and nuScenes on-disk formats."""
+    """Write a synthetic raw dataset in the real AV2 and nuScenes on-disk formats; the defaults are the
+    learning checks' data (10 logs x 20 frames 1 s apart, validation on a world of its own)."""
     from pipeline.synth import synth as write_synth
 
     write_synth(
-        out, logs=logs, frames_per_log=frames_per_log, seed=seed, sensors=sensors, frame_period=frame_period
+        out,
+        logs=logs,
+        frames_per_log=frames_per_log,
+        seed=seed,
+        sensors=sensors,
+        frame_period=frame_period,
+        worlds=worlds,
+        val_worlds=val_worlds,
     )
 
 
@@ -146,6 +156,9 @@ def eval_(
     data: Path = typer.Option(None, help="Prepared dataset folder; default: the one the run trained on"),
     split: str = typer.Option(None, help="Split to predict; default: the config's val split"),
     device: str = typer.Option(None, help="cpu or cuda; default: cuda when available"),
+    floor: bool = typer.Option(
+        True, help="Also score the sensor-blind floor (other log's sensors, constant prior) and the margin"
+    ),
 ) -> None:
     """Predict a split, run Path2Graph, write predictions.parquet and metrics.json into the run folder."""
     from rich.console import Console
@@ -154,14 +167,36 @@ def eval_(
     from baselines.evaluate import evaluate
 
     with reported_errors():
-        metrics = evaluate(run, data, split, device)
+        metrics = evaluate(run, data, split, device, floor=floor)
+    blind = metrics.get("floor")
     table = Table(title=f"{run} on {metrics['split']} ({metrics['frames']} frames)")
-    for name in ("precision", "recall", "f1"):
-        table.add_row(f"directed TOPO {name}", f"{metrics['directed']['topo'][name]:.3f}")
+    table.add_column("")
+    table.add_column("model")
+    for title in ("other log's sensors", "constant prior", "floor", "margin") if blind else ():
+        table.add_column(title)
+
+    def cell(value: float | None) -> str:
+        return "-" if value is None else f"{value:.3f}"
+
+    for mode in ("directed", "undirected"):
+        for name, metric in (("TOPO", "topo"), ("Junction TOPO", "junction_topo")):
+            row = [f"{mode} {name} F1", cell(metrics[mode][metric]["f1"])]
+            if blind:
+                baselines = (blind["other_log_sensors"], blind["constant_prior"])
+                row += [cell(b[mode][metric]["f1"] if b else None) for b in baselines]
+                row += [cell(blind[key][mode][metric] if blind[key] else None) for key in ("f1", "margin")]
+            table.add_row(*row)
+    for name in ("precision", "recall"):
+        table.add_row(f"directed TOPO {name}", cell(metrics["directed"]["topo"][name]))
     for name in ("params", "fps_net", "fps", "device"):
         value = metrics[name]
         table.add_row(name, f"{value:.2f}" if isinstance(value, float) else str(value))
     Console().print(table)
+    if blind and blind["constant_prior"]:
+        prior = blind["constant_prior"]
+        typer.echo(f"constant prior: the ground truth of {prior['frame_id']} ({prior['split']} split)")
+    for name, reason in (blind or {}).get("absent", {}).items():
+        typer.echo(f"floor without {name}: {reason}")
 
 
 @app.command()

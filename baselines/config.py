@@ -39,7 +39,9 @@ class EncoderConfig:
     backbone_frozen_stages: int = 1  # stem + layer1 frozen, as MapTR
     backbone_norm_eval: bool = True  # keep pretrained BatchNorm statistics
     feature_stride: int = 32  # the neck's output stride: 8, 16 or 32
-    camera_heights: tuple[float, ...] = (-1.5, -0.5, 0.5, 1.5)  # z of the 3D points of a BEV pillar
+    # Heights above the ground of the 3D points of a BEV pillar: each frame's `ground_z` (about -1.84
+    # in nuScenes' LIDAR_TOP frame, -0.33 under AV2's rear axle) moves them into its BEV frame.
+    camera_heights: tuple[float, ...] = (-1.5, -0.5, 0.5, 1.5)
     kernel_size: tuple[int, int] = (3, 5)  # GKT kernel (rows, columns) around each projection
     camera_heads: int = 4
     camera_layers: int = 1
@@ -47,7 +49,7 @@ class EncoderConfig:
     # LiDAR branch.
     pillar_channels: int = 64
     pillar_subdivision: int = 2  # pillars per BEV cell side (2: 0.15 m pillars on the 0.3 m grid)
-    z_range: tuple[float, float] = (-5.0, 3.0)  # metres; points outside are dropped
+    z_range: tuple[float, float] = (-5.0, 3.0)  # metres above the ground; points outside are dropped
     lidar_blocks: int = 2
 
     def metres_to_unit(self, xy: Any) -> Any:
@@ -171,7 +173,7 @@ def tiny() -> Config:
             backbone_frozen_stages=0,
             backbone_norm_eval=False,
             feature_stride=8,
-            camera_heights=(0.0,),  # the ground in AV2's frame; in nuScenes' LIDAR_TOP frame: -1.84
+            camera_heights=(0.0,),  # the ground itself (lane paint), on both datasets
             kernel_size=(3, 3),
             camera_heads=4,
             max_views=2,

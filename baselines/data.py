@@ -37,6 +37,7 @@ class Sample:
     points: np.ndarray | None  # (P, 4) x, y, z, intensity (0..1) in the BEV frame
     paths: np.ndarray  # (G, N, 2) unit BEV coordinates
     seg: np.ndarray  # (bev_h, bev_w) int64: 1 lane, 0 background
+    ground_z: float  # z of the ground under the BEV origin, in the BEV frame (frames.ground_z)
 
 
 def resample_polyline(xy: np.ndarray, n: int) -> np.ndarray:
@@ -127,6 +128,9 @@ class PreparedDataset(torch.utils.data.Dataset):
                 f"{self.data_dir}: no frames in split {split!r}; its splits are {', '.join(splits)} "
                 "(choose with --set train.train_split=... / train.val_split=..., or `cli eval --split`)"
             )
+        unknown = [f["frame_id"] for f in frames if f["ground_z"] is None]
+        if unknown:
+            raise ValueError(f"{self.data_dir / 'frames'}: frame {unknown[0]}: ground_z is null")
         self.frames = frames
         frame_ids = set(f["frame_id"] for f in frames)
         in_frames = pc.field("frame_id").isin(sorted(frame_ids))
@@ -165,7 +169,7 @@ class PreparedDataset(torch.utils.data.Dataset):
             seg = lane_mask_from_raster(raster, bev_h, bev_w)
         else:
             seg = lane_mask_from_paths(paths_unit, bev_h, bev_w)
-        sample = Sample(frame["frame_id"], None, None, None, None, None, paths_unit, seg)
+        sample = Sample(frame["frame_id"], None, None, None, None, None, paths_unit, seg, frame["ground_z"])
         if modality in ("camera", "fusion"):
             self._load_cameras(frame, sample)
         if modality in ("lidar", "fusion"):
@@ -212,7 +216,7 @@ class PreparedDataset(torch.utils.data.Dataset):
         ).astype(np.float32)
         encoder = self.config.encoder
         (x0, x1), (y0, y1), (z0, z1) = encoder.x_range, encoder.y_range, encoder.z_range
-        x, y, z = points[:, 0], points[:, 1], points[:, 2]
+        x, y, z = points[:, 0], points[:, 1], points[:, 2] - frame["ground_z"]  # z_range: above the ground
         points = points[(x >= x0) & (x <= x1) & (y >= y0) & (y <= y1) & (z >= z0) & (z <= z1)]
         limit = self.config.data.max_points
         if len(points) > limit:
@@ -236,7 +240,7 @@ class Batch:
 
 
 def collate(samples: list[Sample]) -> Batch:
-    sensors = SensorBatch()
+    sensors = SensorBatch(ground_z=torch.tensor([s.ground_z for s in samples], dtype=torch.float32))
     if samples[0].images is not None:
         height = max(s.images.shape[2] for s in samples)
         width = max(s.images.shape[3] for s in samples)

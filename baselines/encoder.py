@@ -34,6 +34,8 @@ class SensorBatch:
     image_sizes: torch.Tensor | None = None  # (B, Ncam, 2) height, width of each image before padding
     points: torch.Tensor | None = None  # (B, P, 4) x, y, z, intensity in the BEV frame, zero-padded
     points_mask: torch.Tensor | None = None  # (B, P) True for real points
+    # (B,) z of the ground under the BEV origin, in the BEV frame (frames.ground_z); None: z = 0
+    ground_z: torch.Tensor | None = None
 
     def to(self, device: torch.device | str) -> SensorBatch:
         moved = {f.name: getattr(self, f.name) for f in fields(self)}
@@ -45,6 +47,13 @@ class SensorBatch:
     def batch_size(self) -> int:
         return (self.images if self.images is not None else self.points).shape[0]
 
+    def ground(self) -> torch.Tensor:
+        """(B,) ground_z, zeros where it is not given."""
+        if self.ground_z is not None:
+            return self.ground_z.float()
+        reference = self.images if self.images is not None else self.points
+        return torch.zeros(self.batch_size, device=reference.device)
+
 
 def bev_cell_centres(config: EncoderConfig) -> torch.Tensor:
     """(bev_h, bev_w, 2) x, y in metres of each BEV cell centre (row 0 = front)."""
@@ -55,17 +64,26 @@ def bev_cell_centres(config: EncoderConfig) -> torch.Tensor:
     return torch.stack([grid_x, grid_y], -1)
 
 
+def above_ground_to_bev(points: torch.Tensor, ground_z: torch.Tensor) -> torch.Tensor:
+    """Points (P, 3) whose z is the height above the ground -> (B, P, 3) in the BEV frame of each
+    of B frames, given their ground_z (B,)."""
+    lifted = points.repeat(len(ground_z), 1, 1)
+    lifted[..., 2] += ground_z[:, None]
+    return lifted
+
+
 def project_points(
     points: torch.Tensor, intrinsics: torch.Tensor, sensor_to_ego: torch.Tensor, image_sizes: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Project BEV-frame points (P, 3) into every camera.
+    """Project BEV-frame points, (P, 3) shared by the batch or (B, P, 3), into every camera.
 
     Returns pixels (B, Ncam, P, 2) as (u, v) in the OpenCV convention (pixel (0, 0)'s centre at 0, 0)
     and visible (B, Ncam, P): in front of the camera and inside its image.
     """
     ego_to_camera = torch.linalg.inv(sensor_to_ego.float())
-    homogeneous = torch.cat([points, torch.ones_like(points[:, :1])], -1)  # (P, 4)
-    in_camera = torch.einsum("bnij,pj->bnpi", ego_to_camera[..., :3, :], homogeneous)
+    points = points.expand(sensor_to_ego.shape[0], -1, -1)
+    homogeneous = torch.cat([points, torch.ones_like(points[..., :1])], -1)  # (B, P, 4)
+    in_camera = torch.einsum("bnij,bpj->bnpi", ego_to_camera[..., :3, :], homogeneous)
     depth = in_camera[..., 2]
     on_image = torch.einsum("bnij,bnpj->bnpi", intrinsics.float(), in_camera)
     pixels = on_image[..., :2] / depth.clamp(min=1e-3).unsqueeze(-1)
@@ -203,7 +221,8 @@ class CameraEncoder(nn.Module):
             ],
             -1,
         )
-        self.register_buffer("pillar_points", pillars.view(-1, 3), persistent=False)  # (Q * Z, 3)
+        # (Q * Z, 3), z above the ground: each frame's ground_z moves them into its BEV frame
+        self.register_buffer("pillar_points", pillars.view(-1, 3), persistent=False)
         reference = config.metres_to_unit(centres.view(-1, 1, 2))  # (Q, 1, 2) unit coordinates
         self.register_buffer("reference", reference, persistent=False)
         rows, cols = config.kernel_size
@@ -237,9 +256,8 @@ class CameraEncoder(nn.Module):
         """features (B, Ncam, C, Hf, Wf) -> sampled (B, C, Q, S) and mask (B, Q, S)."""
         config = self.config
         num_batch, cameras, dim, feature_h, feature_w = features.shape
-        pixels, visible = project_points(
-            self.pillar_points, batch.intrinsics, batch.sensor_to_ego, batch.image_sizes
-        )
+        points = above_ground_to_bev(self.pillar_points, batch.ground())
+        pixels, visible = project_points(points, batch.intrinsics, batch.sensor_to_ego, batch.image_sizes)
         views = min(config.max_views, cameras)
         # The first `views` cameras that see each point (a point is seen by one, or two in overlaps).
         order = torch.arange(cameras, 0, -1, device=visible.device).view(1, -1, 1)
@@ -317,8 +335,11 @@ class PillarEncoder(nn.Module):
         layers += [ConvBlock(config.channels, config.channels) for _ in range(config.lidar_blocks)]
         self.backbone = nn.Sequential(*layers)
 
-    def forward(self, points: torch.Tensor, points_mask: torch.Tensor) -> torch.Tensor:
+    def forward(self, batch: SensorBatch) -> torch.Tensor:
         config = self.config
+        # z above the ground, for the z_range and as a feature: the same on both datasets' frames
+        points, points_mask = batch.points.clone(), batch.points_mask
+        points[..., 2] -= batch.ground()[:, None]
         num_batch = points.shape[0]
         (x0, x1), (y0, y1), (z0, z1) = config.x_range, config.y_range, config.z_range
         cell_w = (x1 - x0) / self.grid_w
@@ -367,5 +388,5 @@ class BEVEncoder(nn.Module):
         if self.camera is not None:
             maps.append(self.camera(batch))
         if self.lidar is not None:
-            maps.append(self.lidar(batch.points, batch.points_mask))
+            maps.append(self.lidar(batch))
         return self.fuser(torch.cat(maps, 1)) if self.fuser is not None else maps[0]

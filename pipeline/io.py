@@ -12,7 +12,9 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-SCHEMA_VERSION = 1
+from pipeline.errors import DataError
+
+SCHEMA_VERSION = 2  # 2: frames.ground_z
 TABLES = ("frames", "graphs", "paths", "pieces", "piece_links", "rasters")
 
 f32_list = pa.list_(pa.float32())
@@ -42,6 +44,7 @@ SCHEMAS = {
             ("cameras", pa.list_(CAMERA)),
             ("lidar_path", pa.string()),
             ("lidar_to_ego", f64_list),
+            ("ground_z", pa.float32()),
             ("n_vertices", pa.int32()),
             ("n_edges", pa.int32()),
             ("n_paths", pa.int32()),
@@ -131,9 +134,14 @@ def read_table(out: Path, table: str, columns: list[str] | None = None, filter=N
     folder = Path(out) / table
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such table (is {out} a prepared dataset?)")
-    return ds.dataset(folder, format="parquet", schema=SCHEMAS[table]).to_table(
-        columns=columns, filter=filter
-    )
+    dataset = ds.dataset(folder, format="parquet", schema=SCHEMAS[table])
+    # the unified schema would read a column a shard lacks as nulls: refuse older shards instead
+    for fragment in dataset.get_fragments():
+        missing = [c for c in columns or SCHEMAS[table].names if c not in fragment.physical_schema.names]
+        if missing:
+            problem = "missing: prepared by an older version; re-run `cli prepare` with --overwrite"
+            raise DataError(fragment.path, f"column {missing[0]}", problem)
+    return dataset.to_table(columns=columns, filter=filter)
 
 
 def count_rows(out: Path, table: str) -> int:

@@ -118,6 +118,7 @@ def frame_row(frame: Frame, targets: FrameTargets) -> dict:
         ],
         "lidar_path": frame.lidar_path,
         "lidar_to_ego": np.asarray(frame.lidar_to_ego, np.float64).ravel().tolist(),
+        "ground_z": frame.ground_z,
         "n_vertices": len(targets.graph.x),
         "n_edges": len(targets.graph.src),
         "n_paths": len(targets.paths.vertex_ids),
@@ -304,6 +305,11 @@ def prepare(
             raise ValueError(
                 f"{out} was prepared with other options ({before.get('dataset')}, {old}); "
                 "pass --overwrite or choose another --out"
+            )
+        if before.get("schema_version") != io.SCHEMA_VERSION:
+            raise ValueError(
+                f"{manifest_path}: schema_version {before.get('schema_version')}, this version writes "
+                f"{io.SCHEMA_VERSION}; pass --overwrite to prepare it again, or choose another --out"
             )
     out.mkdir(parents=True, exist_ok=True)
     todo = [j for j in jobs if overwrite or not io.shard_done(out, f"{j.split}__{j.name}")]

@@ -35,11 +35,12 @@ def prepared_av2(av2_root, tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def synth_raw(tmp_path_factory) -> Path:
-    """The default synthetic raw dataset (both formats), seed 0."""
+    """A small synthetic raw dataset (both formats), seed 0: 4 logs of 20 frames at 10 Hz in world 0, on its
+    roundabout, fork, S-bend and a left turn (3 train, 1 val)."""
     from pipeline.synth import synth
 
     out = tmp_path_factory.mktemp("synth")
-    synth(out, logs=4, frames_per_log=20, seed=0)
+    synth(out, logs=4, frames_per_log=20, seed=0, frame_period=0.1, worlds=1)
     return out
 
 

@@ -1,7 +1,9 @@
 """The camera encoder's geometry end to end: a lane-paint point of the synthetic world, moved into a
 prepared frame's BEV frame by its pose and projected by the encoder's `project_points` through the
 frame's calibration (as `cli prepare` wrote it and `baselines.data` resized it), lands on the bright
-paint that synth drew in that camera's image; the lane centres between the lines land on asphalt."""
+paint that synth drew in that camera's image; the lane centres between the lines land on asphalt.
+The same holds for the tiny preset's own pillar height, lifted onto each frame's ground by the
+`ground_z` that `cli prepare` recorded (nuScenes' LIDAR_TOP frame is 1.84 m above the ground)."""
 
 from __future__ import annotations
 
@@ -12,7 +14,8 @@ from test_synth import painted_lines
 
 from baselines.config import tiny
 from baselines.data import IMAGENET_MEAN, IMAGENET_STD, PreparedDataset
-from baselines.encoder import project_points
+from baselines.encoder import above_ground_to_bev, project_points
+from pipeline.io import read_table
 from pipeline.synth.world import build_world
 
 
@@ -47,24 +50,45 @@ def grey_levels(sample, points: np.ndarray) -> np.ndarray:
     return np.concatenate(levels)
 
 
+def on_default_pillars(frame: dict, points: np.ndarray) -> np.ndarray:
+    """BEV points moved to the tiny preset's pillar height above the frame's ground, as the camera
+    encoder places its pillar points."""
+    (height,) = tiny().encoder.camera_heights
+    above_ground = torch.from_numpy(np.column_stack([points[:, :2], np.full(len(points), height)])).float()
+    return above_ground_to_bev(above_ground, torch.tensor([frame["ground_z"]]))[0].numpy()
+
+
 @pytest.mark.parametrize("dataset", ["av2", "nuscenes"])
-def test_bev_points_project_onto_the_paint_synth_drew(synth_prepared, dataset):
+@pytest.mark.parametrize("height", ["pose", "default pillars"])
+def test_bev_points_project_onto_the_paint_synth_drew(synth_prepared, dataset, height):
     world = build_world(0)
     paint = painted_lines(world, ("SOLID_WHITE", "SOLID_YELLOW"))
     centres = np.concatenate([lane.centerline(0.1)[:, :2] for lane in world.lanes.values()])
     config = tiny()
     config.encoder.modality = "camera"
     data = PreparedDataset(synth_prepared[dataset], "train" if dataset == "av2" else "mini_train", config)
+
+    def bev(frame: dict, xy: np.ndarray) -> np.ndarray:
+        points = world_to_bev(frame, xy)  # "pose": the ground's own height, through the pose
+        return on_default_pillars(frame, points) if height == "default pillars" else points
+
     contrast, shifted = [], []
     for index in range(0, len(data), 10):
         frame, sample = data.frames[index], data[index]
-        on_paint = grey_levels(sample, world_to_bev(frame, paint))
-        on_asphalt = grey_levels(sample, world_to_bev(frame, centres))
+        on_paint = grey_levels(sample, bev(frame, paint))
+        on_asphalt = grey_levels(sample, bev(frame, centres))
         # the same points 0.6 m to the side: a projection that far off misses the paint
-        off_paint = grey_levels(sample, world_to_bev(frame, paint) + np.array([0.6, 0.6, 0.0]))
+        off_paint = grey_levels(sample, bev(frame, paint) + np.array([0.6, 0.6, 0.0]))
         if len(on_paint) > 50 and len(on_asphalt) > 50:
             contrast.append(np.median(on_paint) - np.median(on_asphalt))
             shifted.append(np.median(off_paint) - np.median(on_asphalt))
     assert len(contrast) >= 4
     assert np.median(contrast) > 25, contrast  # measured: AV2 ~45, nuScenes ~35 grey levels
     assert np.median(contrast) > np.median(shifted) + 20, (contrast, shifted)  # shifted: ~5
+
+
+def test_prepare_records_the_ground_under_the_bev_origin(synth_prepared):
+    """nuScenes: LIDAR_TOP is 1.84 m above the ground; AV2: the synthetic egovehicle origin is on it."""
+    for dataset, expected in (("nuscenes", -1.84), ("av2", 0.0)):
+        ground = read_table(synth_prepared[dataset], "frames", columns=["ground_z"])["ground_z"].to_numpy()
+        assert len(ground) > 0 and np.allclose(ground, expected, atol=0.01), (dataset, ground)

@@ -9,6 +9,7 @@ import shutil
 import numpy as np
 import pyarrow as pa
 import pyarrow.feather as feather
+import pyarrow.parquet as pq
 import pytest
 
 from pipeline.errors import DataError
@@ -163,3 +164,21 @@ def test_streammapnet_geo_splits_put_both_real_logs_in_train(av2_root, tmp_path)
     summary = run(av2_root, tmp_path / "out", split_files=files)
     assert summary["frames"] == 313 and summary["logs_in_no_split_file"] == 0
     assert set(read_table(tmp_path / "out", "frames", columns=["split"])["split"].to_pylist()) == {"train"}
+
+
+def test_a_dataset_prepared_before_ground_z_is_refused_by_name(av2_root, tmp_path):
+    """Shards of schema 1 lack frames.ground_z: reading them is a clear error (not a column of
+    nulls), and so is preparing into them without --overwrite."""
+    out = tmp_path / "out"
+    run(av2_root, out, split="val")
+    (shard,) = (out / "frames").glob("*.parquet")
+    pq.write_table(pq.read_table(shard).drop_columns(["ground_z"]), shard)
+    manifest = json.loads((out / "manifest.json").read_text())
+    (out / "manifest.json").write_text(json.dumps({**manifest, "schema_version": 1}))
+    with pytest.raises(DataError, match=f"{shard}: column ground_z: missing.*--overwrite"):
+        read_table(out, "frames")
+    assert read_table(out, "frames", columns=["frame_id"]).num_rows == 157  # old columns still read
+    with pytest.raises(ValueError, match="schema_version 1.*--overwrite"):
+        run(av2_root, out, split="val")
+    assert run(av2_root, out, split="val", overwrite=True)["frames"] == 157
+    assert read_table(out, "frames")["ground_z"].null_count == 0

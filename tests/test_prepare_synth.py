@@ -110,7 +110,7 @@ def bev_pose(x: float, y: float, heading: float) -> np.ndarray:
 
 def test_fork_has_out_degree_two(synth_raw):
     world = build_world(0)
-    log = synthetic_log(synth_raw, "fork_and_merge")
+    log = synthetic_log(synth_raw, "fork")
     lane_map = LaneMap.from_lanes(log.lanes)
     fork_point = world.lanes[world.landmarks.fork_lane].path.end.xy
     checked = 0
@@ -128,7 +128,7 @@ def test_fork_has_out_degree_two(synth_raw):
 
 def test_lane_that_reenters_gives_two_pieces(synth_raw):
     world = build_world(0)
-    log = synthetic_log(synth_raw, "t_junction_and_s_bend")  # its local map holds the S-bend
+    log = synthetic_log(synth_raw, "s_bend")  # its local map holds the S-bend
     lane_map = LaneMap.from_lanes(log.lanes)
     view = world.landmarks.reentering_view
     pose = bev_pose(view.x, view.y, view.heading)
@@ -143,11 +143,10 @@ def test_lane_that_reenters_gives_two_pieces(synth_raw):
     assert len(offsets) - 1 == 2
     graph = crop_lane_graph(lane_map, np.linalg.inv(pose), Range())
     pieces = graph_to_pieces(graph)
-    xy = np.stack([graph.x, graph.y], 1)
     # the exit and re-entry points on the right border: a leaf and a root, on two different pieces
     on_border = np.flatnonzero(np.isclose(graph.x, 15.0))
     assert len(on_border) == 2
-    leaf, root = sorted(on_border, key=lambda v: xy[v, 1])  # driving north: it leaves first
+    leaf, root = sorted(on_border, key=lambda v: (graph.src == v).sum())  # the side lane drives either way
     assert (graph.dst == leaf).sum() == 1 and (graph.src == leaf).sum() == 0
     assert (graph.src == root).sum() == 1 and (graph.dst == root).sum() == 0
     piece_of = {int(c[-1]): i for i, c in enumerate(pieces.chains)} | {
@@ -190,10 +189,10 @@ def test_av2_and_nuscenes_give_the_same_graphs(synth_prepared):
                 inner &= (np.abs(local[:, 0]) < 14) & (np.abs(local[:, 1]) < 28.5)
             if inner.any():
                 distance = shapely.distance(shapely.points(points[inner]), other)
-                # AV2 centerlines are 10 points per segment: on the tightest arcs their chords stray
-                # up to ~7 cm from the nuScenes arcs (discretised at 0.5 m)
-                assert distance.max() < 0.1, (t, a, distance.max())
-                assert np.median(distance) < 0.02
+                # AV2 centerlines are 10 points per segment: on long turns across a 5-arm junction their
+                # chords stray up to ~10 cm from the nuScenes arcs (discretised at 0.5 m)
+                assert distance.max() < 0.15, (t, a, distance.max())
+                assert np.median(distance) < 0.03
 
 
 def test_no_two_vertices_share_a_point(synth_prepared):

@@ -16,6 +16,8 @@ RING_CAMERAS = (
     "ring_front_center", "ring_front_left", "ring_front_right", "ring_side_left",
     "ring_side_right", "ring_rear_left", "ring_rear_right",
 )  # fmt: skip
+GROUND_RADIUS_M = 5.0  # lane points this close to the BEV origin (horizontally) give its ground height
+GROUND_BAND_M = 2.0  # lane points farther above or below it are another level (a bridge, a ramp)
 
 
 def find_logs(root: Path, split: str | None) -> list[tuple[str, Path]]:
@@ -114,6 +116,15 @@ def read_cameras(log_dir: Path) -> dict[str, tuple[np.ndarray, np.ndarray, int, 
     return cameras
 
 
+def ground_height(lane_points: np.ndarray, bev_to_city: np.ndarray) -> float | None:
+    """z, in the BEV frame, of the road under its origin: the median height of the map's lane
+    centerline points (on the road surface) near it; None where there are none. The egovehicle
+    origin is the centre of the rear axle, about 0.34 m above the road on the real logs."""
+    local = (lane_points - bev_to_city[:3, 3]) @ bev_to_city[:3, :3]
+    near = (np.hypot(local[:, 0], local[:, 1]) < GROUND_RADIUS_M) & (np.abs(local[:, 2]) < GROUND_BAND_M)
+    return float(np.median(local[near, 2])) if near.any() else None
+
+
 def nearest(times: np.ndarray, t: int) -> int:
     i = int(np.clip(np.searchsorted(times, t), 1, len(times) - 1)) if len(times) > 1 else 0
     return i - 1 if len(times) > 1 and t - times[i - 1] <= times[i] - t else i
@@ -124,7 +135,8 @@ def load_log(root: Path, split: str, log_dir: Path, frame_stride: int = 1) -> Lo
     pose_times, ego_to_city = read_poses(log_dir)
     cameras = read_cameras(log_dir)
     has_lidar = (log_dir / "sensors" / "lidar").is_dir()
-    frames = []
+    lane_points = np.concatenate([lane.xyz for lane in lanes]) if lanes else np.zeros((0, 3))
+    frames, heights = [], []
     for t in frame_timestamps(log_dir)[::frame_stride].tolist():
         pose = ego_to_city[pose_times[nearest(pose_times, t)]].transform_matrix @ AV2_EGO_FROM_BEV
         frame_cameras = [
@@ -151,5 +163,11 @@ def load_log(root: Path, split: str, log_dir: Path, frame_stride: int = 1) -> Lo
                 lidar_to_ego=BEV_FROM_AV2_EGO.copy(),
             )
         )
+        heights.append(ground_height(lane_points, pose))
+    # frames far from every lane take the log's typical height (0, the egovehicle plane, if none has one)
+    found = [h for h in heights if h is not None]
+    typical = float(np.median(found)) if found else 0.0
+    for frame, height in zip(frames, heights):
+        frame.ground_z = typical if height is None else height
     return Log("av2", split, log_dir.name, str(log_dir), lanes, frames,
                pose_source=str(log_dir / "city_SE3_egovehicle.feather"))  # fmt: skip

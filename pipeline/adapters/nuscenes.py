@@ -135,6 +135,14 @@ def sensor_to_world(nusc, sample_data: dict) -> np.ndarray:
     )
 
 
+def ground_height(calib: dict) -> float:
+    """z, in the LIDAR_TOP frame, of the ground under the sensor: a nuScenes ego pose sits on the
+    ground (ego z = 0), so that is the ego-frame point (x, y, 0) under the calibrated lidar."""
+    lidar_to_ego = pose_matrix(calib["rotation"], calib["translation"])
+    under = np.array([*lidar_to_ego[:2, 3], 0.0, 1.0])
+    return float((np.linalg.inv(lidar_to_ego) @ under)[2])
+
+
 def load_log(ref: SceneRef, margin: float) -> Log:
     """One scene as a Log; margin is the crop's radius (lanes farther from every pose are left out)."""
     nusc = load_tables(ref.dataroot, ref.version)
@@ -146,6 +154,7 @@ def load_log(ref: SceneRef, margin: float) -> Log:
         sample = nusc.get("sample", token)
         lidar = nusc.get("sample_data", sample["data"]["LIDAR_TOP"])
         lidar_to_world = sensor_to_world(nusc, lidar)
+        lidar_calib = nusc.get("calibrated_sensor", lidar["calibrated_sensor_token"])
         world_to_lidar = np.linalg.inv(lidar_to_world)
         cameras = []
         for channel in sorted(k for k in sample["data"] if k.startswith("CAM")):
@@ -169,6 +178,7 @@ def load_log(ref: SceneRef, margin: float) -> Log:
                 cameras=cameras,
                 lidar_path=lidar["filename"],
                 lidar_to_ego=np.eye(4),
+                ground_z=ground_height(lidar_calib),
             )
         )
         token = sample["next"]

@@ -20,7 +20,7 @@ from pipeline.synth.ids import token
 from pipeline.synth.lidar import Sweep
 from pipeline.synth.logs import LogPlan, frame_cuboids
 from pipeline.synth.rig import AV2_CAMERAS, AV2_LIDARS
-from pipeline.synth.world import AV2_CITY, World
+from pipeline.synth.world import World
 
 LOCAL_MAP_RADIUS_M = 80.0  # l-infinity distance from the trajectory within which a log's map keeps lanes
 RASTER_SCALE = 10.0 / 3.0  # AV2 rasters are 30 cm per pixel
@@ -56,7 +56,11 @@ def write_log(root: Path, world: World, plan: LogPlan) -> Path:
 
 
 def _points(xy: np.ndarray) -> list[dict]:
-    return [{"x": round(float(x), 2), "y": round(float(y), 2), "z": 0.0} for x, y in xy]
+    """Centimetre points, as the real files; a point that rounds onto the one before is dropped (the av2
+    API's interpolation divides by the distance between neighbours)."""
+    rounded = np.round(xy, 2)
+    keep = np.concatenate([[True], np.abs(np.diff(rounded, axis=0)).max(axis=1) > 0])
+    return [{"x": float(x), "y": float(y), "z": 0.0} for x, y in rounded[keep]]
 
 
 def write_map(map_dir: Path, world: World, plan: LogPlan) -> None:
@@ -96,7 +100,7 @@ def write_map(map_dir: Path, world: World, plan: LogPlan) -> None:
             }
     tile = int(token(world.seed, "city tile", plan.index)[:8], 16) % 90_000 + 10_000
     vector_map = {"pedestrian_crossings": crossings, "lane_segments": lanes, "drivable_areas": areas}
-    name = f"log_map_archive_{plan.log_id}____{AV2_CITY}_city_{tile}.json"
+    name = f"log_map_archive_{plan.log_id}____{world.av2_city}_city_{tile}.json"
     (map_dir / name).write_text(json.dumps(vector_map))
     # the raster (ground height) grid would start at the map's lower left corner, 30 cm per pixel
     corners = [[p["x"], p["y"]] for area in areas.values() for p in area["area_boundary"]]
@@ -146,7 +150,7 @@ def write_calibration(log_dir: Path) -> None:
         "width_px": pa.array([c.width for c in AV2_CAMERAS], pa.int64()),
     })  # fmt: skip
     poses = [(c.name, c.quaternion, c.translation) for c in AV2_CAMERAS]
-    poses += [(name, q, t) for name, (t, q) in AV2_LIDARS.items()]
+    poses += [(lidar.name, lidar.quaternion, lidar.translation) for lidar in AV2_LIDARS]
     columns = {"sensor_name": [name for name, _, _ in poses]}
     columns |= {k: [float(q[i]) for _, q, _ in poses] for i, k in enumerate(("qw", "qx", "qy", "qz"))}
     columns |= {k: [float(t[i]) for _, _, t in poses] for i, k in enumerate(("tx_m", "ty_m", "tz_m"))}

@@ -68,11 +68,32 @@ def camera_model(spec: CameraSpec) -> CameraModel:
     )
 
 
+@dataclass(frozen=True)
+class Lighting:
+    """One log's light and camera response: the day's sun or overcast, the white balance, the sensor."""
+
+    brightness: float  # gain on every channel
+    contrast: float  # about mid-grey
+    colour_gains: np.ndarray  # (3,) B, G, R: the colour temperature
+    noise_sigma: float  # grey levels, per pixel and channel
+
+    def transform(self, exposure: float) -> np.ndarray:
+        """(3, 4) cv2.transform matrix: contrast about mid-grey, then the gains of the light and exposure."""
+        gains = self.brightness * exposure * self.colour_gains
+        return np.column_stack([np.diag(gains * self.contrast), gains * 128.0 * (1.0 - self.contrast)])
+
+
+def draw_lighting(rng: np.random.Generator) -> Lighting:
+    warmth = rng.uniform(-1.0, 1.0)  # -1: bluish overcast or shade, +1: warm low sun
+    colour_gains = 1.0 + 0.08 * warmth * np.array([-1.0, 0.0, 1.0])
+    return Lighting(rng.uniform(0.75, 1.2), rng.uniform(0.8, 1.2), colour_gains, rng.uniform(2.0, 5.0))
+
+
 class Noise:
     """Sensor noise images cut from one bank of random bytes (centred on 128): cheap per image."""
 
-    def __init__(self, rng: np.random.Generator, sigma: float = 1.5, rows: int = 1024, width: int = 400):
-        self.bank = np.clip(rng.normal(128.0, sigma, (rows, width, 3)), 0, 255).astype(np.uint8)
+    def __init__(self, rng: np.random.Generator, sigma: float, rows: int = 1024, width: int = 400):
+        self.bank = np.clip(np.rint(rng.normal(128.0, sigma, (rows, width, 3))), 0, 255).astype(np.uint8)
         self.rng = rng
 
     def like(self, h: int, w: int) -> np.ndarray:
@@ -81,7 +102,8 @@ class Noise:
         return self.bank[row : row + h, col : col + w]
 
 
-def render(model: CameraModel, texture: GroundTexture, pose: np.ndarray, noise: Noise) -> np.ndarray:
+def render(model: CameraModel, texture: GroundTexture, pose: np.ndarray, lighting: Lighting,
+           noise: Noise) -> np.ndarray:  # fmt: skip
     """(h, w, 3) uint8 BGR image of the camera on the ego at pose (x, y, heading)."""
     spec = model.spec
     ground = np.zeros((spec.height, spec.width, 3), np.uint8)
@@ -89,9 +111,9 @@ def render(model: CameraModel, texture: GroundTexture, pose: np.ndarray, noise: 
         texels = cv2.transform(xy, texture.from_ego(pose, level))
         ground[rows] = cv2.remap(texture.pyramid[level], texels, None, cv2.INTER_LINEAR,
                                  borderMode=cv2.BORDER_CONSTANT, borderValue=OFF_MAP_BGR)  # fmt: skip
-    image = cv2.multiply(ground, model.ground_weight, scale=1.0 / 255.0)
-    exposure = noise.rng.uniform(0.8, 1.15)  # varies from image to image
-    image = cv2.addWeighted(image, exposure, model.haze, exposure, 0.0)
+    image = cv2.add(cv2.multiply(ground, model.ground_weight, scale=1.0 / 255.0), model.haze)
+    exposure = noise.rng.uniform(0.9, 1.1)  # auto exposure varies a little from image to image
+    image = cv2.transform(image, lighting.transform(exposure))
     return cv2.addWeighted(image, 1.0, noise.like(*image.shape[:2]), 1.0, -128.0)
 
 

@@ -106,11 +106,9 @@ def plan_logs(
     splits = split_of_logs(logs)
     world_of = worlds_of_logs(splits, len(worlds), val_worlds) if len(worlds) > 1 else [0] * logs
     plans, names = [], {"train": iter(MINI_TRAIN), "val": iter(MINI_VAL)}
-    routes_taken = [0] * len(worlds)
     for index, (split, w) in enumerate(zip(splits, world_of, strict=True)):
         world = worlds[w]
-        route = world.routes[routes_taken[w] % len(world.routes)]
-        routes_taken[w] += 1
+        route = world.routes[index % len(world.routes)]  # a different kind of route for every log
         path = Path(tuple(p for lane in route.lanes for p in world.lanes[lane].path.pieces))
         duration_s = ((frames_per_log - 1) * frame_period_ns + 2 * POSE_MARGIN_NS) * 1e-9
         # slow down rather than run out of road

@@ -162,7 +162,9 @@ class Network:
         start, end = self.lanes[a].path.end, self.lanes[b].path.start
         try:
             pieces = fillet(start, end)
-            if any(p.curvature and 1.0 / abs(p.curvature) < MIN_FILLET_RADIUS_M for p in pieces):
+            if any(
+                p.curvature and 1.0 / abs(p.curvature) < MIN_FILLET_RADIUS_M or p.length < 0.1 for p in pieces
+            ):
                 pieces = biarc(start, end)
         except ValueError:
             pieces = biarc(start, end)

@@ -7,7 +7,6 @@ LIDAR_TOP (and the cameras when sensors are on), each with its own ego_pose, lik
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta, timezone
 from pathlib import Path
@@ -18,7 +17,7 @@ from pipeline.synth.av2_writer import yaw_quaternion
 from pipeline.synth.ids import token
 from pipeline.synth.lidar import Sweep
 from pipeline.synth.logs import Cuboid, LogPlan, frame_cuboids
-from pipeline.synth.rig import NUSCENES_CAMERAS, ROOF_LIDAR
+from pipeline.synth.rig import NUSCENES_CAMERAS, NUSCENES_LIDAR
 from pipeline.synth.world import World
 
 VERSION = "v1.0-mini"
@@ -43,12 +42,8 @@ class Channel:
 
 
 # the real rig: LIDAR_TOP turned -90 deg about z, so its axes are x right, y forward
-LIDAR_YAW = -math.pi / 2
 LIDAR_TOP = Channel(
-    "LIDAR_TOP",
-    "lidar",
-    list(ROOF_LIDAR.translation),
-    [math.cos(LIDAR_YAW / 2), 0.0, 0.0, math.sin(LIDAR_YAW / 2)],
+    NUSCENES_LIDAR.name, "lidar", list(NUSCENES_LIDAR.translation), NUSCENES_LIDAR.quaternion.tolist()
 )
 
 
@@ -74,10 +69,9 @@ def channels(sensors: bool) -> list[Channel]:
 
 def write_pcd_bin(path: Path, sweep: Sweep) -> None:
     """float32 x, y, z, intensity, ring per point, in the LIDAR_TOP frame (x right, y forward)."""
-    c, s = math.cos(LIDAR_YAW), math.sin(LIDAR_YAW)
-    d = sweep.xyz - np.array(ROOF_LIDAR.translation)
-    x, y = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]  # ego -> lidar: the inverse yaw
-    points = np.column_stack([x, y, d[:, 2], sweep.intensity, sweep.laser]).astype(np.float32)
+    to_sensor = NUSCENES_LIDAR.rotation.T  # rows: the sensor axes in the ego frame
+    xyz = (sweep.xyz - np.array(NUSCENES_LIDAR.translation)) @ to_sensor.T
+    points = np.column_stack([xyz, sweep.intensity, sweep.laser]).astype(np.float32)
     path.write_bytes(points.tobytes())
 
 
@@ -142,13 +136,14 @@ def _chain(tokens: list[str], i: int) -> dict[str, str]:
 
 def write_tables(
     root: Path,
-    world: World,
+    worlds: list[World],
     plans: list[LogPlan],
     channels: list[Channel],
-    map_name: str,
-    prior_filename: str,
+    prior_filenames: dict[int, str],
 ) -> None:
-    t = _Tables(world.seed)
+    """The tables of every log; each world is a map location with its own semantic prior
+    (prior_filenames: world index -> file, for the worlds that logs drive in)."""
+    t = _Tables(worlds[0].seed)
     for name, description in CATEGORIES:
         t.add("category", token=t.token("category", name), name=name, description=description)
     for name, description in ATTRIBUTES:
@@ -164,12 +159,17 @@ def write_tables(
     for c in channels:
         t.add("sensor", token=t.token("sensor", c.name), channel=c.name, modality=c.modality)
     for plan in plans:
-        _add_scene(t, plan, channels, map_name)
-        _add_annotations(t, world, plan)
-    log_tokens = [log["token"] for log in t.records["log"]]
-    t.add(
-        "map", category="semantic_prior", token=t.token("map"), filename=prior_filename, log_tokens=log_tokens
-    )
+        _add_scene(t, plan, channels, worlds[plan.world].nuscenes_map)
+        _add_annotations(t, worlds[plan.world], plan)
+    for w, filename in sorted(prior_filenames.items()):
+        log_tokens = [t.token("log", plan.index) for plan in plans if plan.world == w]
+        t.add(
+            "map",
+            category="semantic_prior",
+            token=t.token("map", w),
+            filename=filename,
+            log_tokens=log_tokens,
+        )
     (root / VERSION).mkdir(parents=True, exist_ok=True)
     for name, records in t.records.items():
         (root / VERSION / f"{name}.json").write_text(json.dumps(records, indent=0))

@@ -1,8 +1,9 @@
-"""Sensor rigs: the nuScenes 6-camera rig, the AV2 7 ring cameras and the roof LiDAR, at reduced resolution.
+"""Sensor rigs: the nuScenes 6-camera rig and HDL-32E LiDAR, the AV2 7 ring cameras and two VLP-32C LiDARs.
 
 Poses are in the ego frame of both datasets (x forward, y left, z up, origin on the ground under the
 rear axle). Placements and fields of view follow the real rigs; image sizes are divided by 4 (nuScenes,
-1600 x 900 -> 400 x 225) and 8 (AV2, 2048 x 1550 -> 256 x 194) with the intrinsics scaled alike.
+1600 x 900 -> 400 x 225) and 8 (AV2, 2048 x 1550 -> 256 x 194) with the intrinsics scaled alike. The
+LiDARs keep their real lasers and azimuth steps, so that sweeps are as dense as the real ones.
 """
 
 from __future__ import annotations
@@ -91,17 +92,62 @@ AV2_CAMERAS = [
 ]
 
 
+def quaternion_matrix(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
+
+
 @dataclass(frozen=True)
 class LidarSpec:
+    """A spinning multi-laser LiDAR: one firing of every laser per azimuth step, one revolution per sweep."""
+
+    name: str
     translation: tuple[float, float, float]  # in the ego frame
-    elevations_deg: np.ndarray  # one per laser, laser 0 lowest
+    quaternion: np.ndarray  # w, x, y, z: sensor axes -> ego frame
+    elevations_deg: np.ndarray  # in the sensor frame, indexed by the sensor's own laser id
+    first_laser: int  # laser numbers in the published sweep are first_laser + laser id
     azimuth_steps: int  # firings per revolution
-    max_range: float
+    revolution_ns: int  # one revolution per sweep
+    max_range: float  # m
+
+    @property
+    def rotation(self) -> np.ndarray:
+        return quaternion_matrix(self.quaternion)
 
 
-# one 32-laser roof LiDAR (HDL-32E-like) serves both datasets: nuScenes LIDAR_TOP sits here too
-ROOF_LIDAR = LidarSpec((0.943, 0.0, 1.84), np.linspace(-30.67, 10.67, 32), 180, 40.0)
-AV2_LIDARS = {  # AV2 names two stacked lidars, the lower one upside down; the sweeps come from the upper one
-    "up_lidar": (ROOF_LIDAR.translation, np.array([1.0, 0.0, 0.0, 0.0])),
-    "down_lidar": ((0.943, 0.0, 1.72), np.array([0.0, 1.0, 0.0, 0.0])),
-}
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+UPSIDE_DOWN = np.array([0.0, 1.0, 0.0, 0.0])  # turned 180 deg about x
+YAW_RIGHT = np.array([math.cos(math.pi / 4), 0.0, 0.0, -math.sin(math.pi / 4)])  # turned -90 deg about z
+
+# Velodyne HDL-32E as nuScenes runs it: 20 Hz, ~695,000 returns a second, so 1085 firings (0.33 deg) per
+# revolution and at most 34,720 points per sweep; 32 lasers 1.33 deg apart (ids in elevation order, as
+# the nuScenes ring index); usable returns up to ~70 m.
+HDL32E_ELEVATIONS_DEG = np.linspace(-30.67, 10.67, 32)
+# Velodyne VLP-32C as AV2 runs it: 10 Hz, 1800 firings (0.2 deg) per revolution, so at most 57,600
+# points per sweep; lasers crowd near the horizon (VLP-32C manual, vertical angle by laser id, which is
+# also the firing order); range 200 m.
+VLP32C_ELEVATIONS_DEG = np.array([
+    -25.0, -1.0, -1.667, -15.639, -11.31, 0.0, -0.667, -8.843, -7.254, 0.333, -0.333, -6.148, -5.333, 1.333,
+    0.667, -4.0, -4.667, 1.667, 1.0, -3.667, -3.333, 3.333, 2.333, -2.667, -3.0, 7.0, 4.667, -2.333, -2.0,
+    15.0, 10.333, -1.333,
+])  # fmt: skip
+
+
+def _vlp32c(name: str, translation: tuple, quaternion: np.ndarray, first_laser: int) -> LidarSpec:
+    return LidarSpec(
+        name, translation, quaternion, VLP32C_ELEVATIONS_DEG, first_laser, 1800, 100_000_000, 200.0
+    )
+
+
+# nuScenes LIDAR_TOP: turned -90 deg about z (its axes are x right, y forward)
+NUSCENES_LIDAR = LidarSpec("LIDAR_TOP", (0.943, 0.0, 1.84), YAW_RIGHT, HDL32E_ELEVATIONS_DEG, 0, 1085,
+                           50_000_000, 70.0)  # fmt: skip
+# AV2: two stacked VLP-32C, the lower one upside down; a sweep merges both, laser numbers 0-31 and 32-63
+AV2_LIDARS = [
+    _vlp32c("up_lidar", (0.943, 0.0, 1.84), IDENTITY, 0),
+    _vlp32c("down_lidar", (0.943, 0.0, 1.72), UPSIDE_DOWN, 32),
+]

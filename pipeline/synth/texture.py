@@ -47,12 +47,14 @@ class GroundTexture:
         return np.array([[c, -s, (x - self.x0) * scale + shift], [s, c, (y - self.y0) * scale + shift]])
 
     def material_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        col, row = (np.round(v).astype(np.int64) for v in self.pixels(x, y))
+        """The material under each world point (the nearest texel); grass beyond the texture."""
         h, w = self.material.shape
+        col = np.rint((x - self.x0) / RESOLUTION_M).astype(np.int64)
+        row = np.rint((y - self.y0) / RESOLUTION_M).astype(np.int64)
         inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-        out = np.full(col.shape, GRASS, np.uint8)
-        out[inside] = self.material[row[inside], col[inside]]
-        return out
+        # clip, then look up all at once: cheaper than indexing with the mask
+        found = self.material[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)]
+        return np.where(inside, found, np.uint8(GRASS))
 
 
 def ground_texture(

@@ -335,18 +335,18 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
             *(net.lanes[i].centerline()[:, :2] - [reentering_view.x, reentering_view.y]).T
         ).min(),
     )  # noqa: E501
-    foci = {
+    foci = {  # the hard cases first: a dataset of few logs still sees them
+        "roundabout": [(street.forward[0][-1], (view.x, view.y))],
+        "fork": [(ramp[0], tuple(float(v) for v in net.lanes[fork_lane].path.end.xy))],
+        "s_bend": [(ego_lane, (reentering_view.x, reentering_view.y))],
         "junction_left": [middle(i) for i in junction["left"]],
         "junction_right": [middle(i) for i in junction["right"]],
-        "junction_straight": [middle(i) for i in junction["straight"]],
         "t_junction_turn": [middle(i) for i in t_turns["left"] + t_turns["right"]],
-        "roundabout": [(street.forward[0][-1], (view.x, view.y))],
-        "roundabout_through": [middle(i) for i in ring.entries],
-        "fork": [(ramp[0], tuple(float(v) for v in net.lanes[fork_lane].path.end.xy))],
         "merge": [(merge_lane, tuple(float(v) for v in net.lanes[merge_lane].path.start.xy))],
-        "s_bend": [(ego_lane, (reentering_view.x, reentering_view.y))],
         "curve": [middle(i) for i in curve],
         "road": [middle(i) for i in plain],
+        "junction_straight": [middle(i) for i in junction["straight"]],
+        "roundabout_through": [middle(i) for i in ring.entries],
     }
     kerbs = [(road, -1, "cars") for road in cross_roads + roundabout_arms[:1]]
     kerbs += [(arms["plain"], -1, "cars")] if "plain" in arms else []
@@ -404,15 +404,13 @@ ROUTE_LENGTH_M = 260.0  # enough for 20 frames 1 s apart at 12 m/s, plus the lea
 
 
 def _routes(net: Network, foci: dict[str, list], rng: np.random.Generator) -> list[Route]:
-    """One route per kind of focus, in an order drawn per world, then a second round: each a random walk
-    through a random focus lane of its kind (backwards and forwards, no lane twice)."""
-    kinds = list(foci)
-    order = [kinds[i] for i in rng.permutation(len(kinds))]
+    """Two rounds of one route per kind of focus, in the order of `foci` (log i of a dataset drives
+    route i, so that consecutive logs see different hard cases): each a random walk through a random
+    focus lane of its kind (backwards and forwards, no lane twice)."""
     routes = []
-    for kind in order + [kinds[i] for i in rng.permutation(len(kinds))]:
+    for kind in list(foci) * 2:
         lane, focus = foci[kind][int(rng.integers(len(foci[kind])))]
-        lanes = _walk(net, lane, rng)
-        routes.append(Route(kind, lanes, focus, float(rng.uniform(6.0, 12.0))))
+        routes.append(Route(kind, _walk(net, lane, rng), focus, float(rng.uniform(6.0, 12.0))))
     return routes
 
 

@@ -1,0 +1,30 @@
+"""The default synthetic split demands perception: no fixed graph fits its validation frames."""
+
+from __future__ import annotations
+
+from baselines.floor import search_constant_prior
+from benchmark.metrics import MetricParams
+from benchmark.score import default_range, graphs_from_table, read_graph_table, score_pairs
+from pipeline.io import read_table
+
+PRIOR_CEILING = 0.35  # directed TOPO F1 of the best constant graph on the validation frames
+
+
+def test_the_constant_prior_scores_low_on_the_default_validation_frames(tmp_path):
+    from pipeline.prepare import prepare
+    from pipeline.synth import synth
+    from pipeline.targets import TargetOptions
+
+    synth(tmp_path / "raw", sensors=False)  # the defaults: the learning checks' data, without sensors
+    data = tmp_path / "prepared"
+    prepare("av2", tmp_path / "raw" / "av2" / "sensor", data, TargetOptions())
+    frames = read_table(data, "frames").to_pylist()
+    ids = {split: [f["frame_id"] for f in frames if f["split"] == split] for split in ("train", "val")}
+    assert len(ids["train"]) == 160 and len(ids["val"]) == 40
+    truth = graphs_from_table(read_graph_table(data), data)
+    params = MetricParams(bev_range=default_range(data))
+    prior = search_constant_prior(truth, ids["train"], "train", params, tmp_path / "cache")
+    scores = score_pairs([(truth[prior["frame_id"]], truth[f]) for f in ids["val"]], params)
+    print(f"constant prior {prior['frame_id']}: train F1 {prior['train_f1']:.3f}, val {scores['directed']}")
+    assert scores["directed"]["topo"]["f1"] <= PRIOR_CEILING
+    assert scores["directed"]["junction_topo"]["f1"] <= PRIOR_CEILING

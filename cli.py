@@ -114,7 +114,7 @@ def train(
     out: Path = typer.Option(..., help="Run folder: config.json, checkpoint.pt, log.jsonl"),
     model: str = typer.Option("lanegap", help="Baseline to train: lanegap"),
     preset: str = typer.Option("paper", help="paper (the paper's settings) or tiny (CPU, seconds per epoch)"),
-    modality: str = typer.Option(None, help="camera, lidar or fusion (default: the preset's, camera)"),
+    modality: str = typer.Option(None, help="camera, lidar or fusion (default: paper camera, tiny fusion)"),
     epochs: int = typer.Option(None, help="Epochs (paper: 24; 110 for the long schedule)"),
     batch_size: int = typer.Option(None, help="Batch size in total over all processes"),
     path_points: int = typer.Option(None, help="Points per path N: 10, 20, 30 or 40"),

@@ -164,6 +164,7 @@ def tiny() -> Config:
     return Config(
         preset="tiny",
         encoder=EncoderConfig(
+            modality="fusion",  # the learning checks' recipe: paint in the images and the LiDAR intensities
             bev_h=40,
             bev_w=20,
             channels=64,
@@ -202,7 +203,7 @@ def tiny() -> Config:
             cache_samples=True,
         ),
         train=TrainConfig(
-            epochs=6, batch_size=4, lr=2e-3, backbone_lr_mult=1.0, warmup_iters=50, amp=False, threads=2
+            epochs=12, batch_size=4, lr=2e-3, backbone_lr_mult=1.0, warmup_iters=50, amp=False, threads=2
         ),
     )
 

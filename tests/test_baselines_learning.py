@@ -1,55 +1,63 @@
-"""The learning check: LaneGAP (tiny preset, CPU) trained on the synthetic training logs must reach
-directed TOPO F1 >= 0.5 on the synthetic validation logs, which it never sees, while the untrained
-model scores below 0.1. The whole test (data, training, both evaluations) stays within 5 minutes on
-the 2-core CI machine, run alone (not beside other tests)."""
+"""The learning checks: LaneGAP (tiny preset, CPU) trained on the synthetic training logs must reach its
+directed TOPO F1 bar on the validation logs, which it never trains on, AND beat its sensor-blind floor
+(baselines/floor.py: the same model fed another log's sensors, and the best constant training graph) by
++0.15 directed TOPO F1 and +0.10 directed Junction TOPO F1: a model that does so reads its sensors.
+
+Two splits of `cli synth`'s default data (10 logs x 20 frames 1 s apart, seed 0):
+- `same_roads` (`--worlds 1`): validation logs drive other routes of the training world;
+- `unseen_roads` (the default, `--worlds 4`): validation logs drive a world no training log visits.
+Each check stays within 6 minutes of wall time on the 2-core machine, run alone (not beside other
+tests): `make test-learning` (LANEGRAPH_LEARNING_CHECK=1). They are not part of `make test` today:
+none passes yet (see MEASURED)."""
 
 from __future__ import annotations
 
-import json
 import os
 import time
 
 import pytest
-import torch
 
 from baselines.bench_train import prepare_synthetic
 from baselines.config import resolve_config
 from baselines.evaluate import evaluate
-from baselines.lanegap import LaneGAP
+from baselines.floor import floor_margins
 from baselines.train import train
 
-TRAINED_F1 = 0.5
-UNTRAINED_F1 = 0.1
+TOPO_MARGIN, JUNCTION_MARGIN = 0.15, 0.10
+WALL_SECONDS = 360
+# (split, worlds, modality, directed TOPO F1 bar)
+CHECKS = [
+    ("same_roads", 1, "fusion", 0.5),
+    ("unseen_roads", 4, "fusion", 0.5),
+    ("unseen_roads", 4, "lidar", 0.4),
+]
+# MEASURED 2026-12-01 (seed 0, tiny preset: fusion, 12 epochs = 480 steps, ~4.5 min of training): the
+# tiny decoder does not yet learn these worlds within the CPU budget. Directed TOPO / Junction TOPO F1
+# at score thresholds 0.7 (the preset's) and 0.5: same roads 0.083 / 0.092 and 0.230 / 0.330; unseen
+# roads 0.000 / 0.000 and 0.196 / 0.256. Floors at 0.5: constant prior ~0.25-0.26 / 0.28-0.33, other
+# log's sensors 0.13-0.15 / 0.10-0.20. The bars are the learning-check issue's; do not lower them.
 
 
-# It must run alone (`make test` runs it after the rest, via `make test-learning`): beside other
-# tests its 5 minutes of wall time would not hold. Measured alone on a quiet 2-core machine
-# (2026-11-30): ~190 s in all, F1 0.609.
-@pytest.mark.skipif(
-    os.environ.get("LANEGRAPH_LEARNING_CHECK") != "1",
-    reason="the learning check runs alone: make test-learning (LANEGRAPH_LEARNING_CHECK=1)",
+@pytest.mark.parametrize(
+    ("split", "worlds", "modality", "bar"), CHECKS, ids=[f"{c[0]}-{c[2]}" for c in CHECKS]
 )
-def test_lanegap_tiny_learns_the_synthetic_world(tmp_path):
+def test_lanegap_tiny_learns_to_read_its_sensors(tmp_path_factory, split, worlds, modality, bar):
+    if os.environ.get("LANEGRAPH_LEARNING_CHECK") != "1":
+        pytest.skip("learning checks run alone: make test-learning (LANEGRAPH_LEARNING_CHECK=1)")
     start = time.perf_counter()
-    # 10 logs (8 train, 2 val) of 20 frames 1 s apart: ten times as much of the world as 20 frames at
-    # 10 Hz, with which the same run reaches only ~0.2 (0.52 with frames 0.5 s apart).
-    data = prepare_synthetic(tmp_path / "data", logs=10, frames_per_log=20, frame_period=1.0)
-    # Fusion reads the paint both in the images and in the LiDAR intensities (the synthetic sweeps are
-    # sparse: LiDAR alone scores ~0).
-    config = resolve_config("tiny", modality="fusion", epochs=12)
-
-    untrained = tmp_path / "untrained"
-    untrained.mkdir()
-    torch.manual_seed(config.train.seed)
-    torch.save({"model": LaneGAP(config).state_dict()}, untrained / "checkpoint.pt")
-    config.save(untrained / "config.json")
-    (untrained / "run.json").write_text(json.dumps({"data": str(data)}))
-    before = evaluate(untrained, data, "val", device="cpu")["directed"]["topo"]["f1"]
-
-    summary = train(config, data, tmp_path / "run")
-    after = evaluate(tmp_path / "run", data, "val", device="cpu")["directed"]["topo"]["f1"]
+    data = prepare_synthetic(tmp_path_factory.mktemp("data") / split, worlds=worlds)
+    config = resolve_config("tiny", modality=modality)
+    run = tmp_path_factory.mktemp(f"{split}_{modality}")
+    summary = train(config, data, run)
+    metrics = evaluate(run, data, "val", device="cpu")
     seconds = time.perf_counter() - start
-    print(f"directed TOPO F1 untrained {before:.3f}, trained {after:.3f}; {summary}; {seconds:.0f} s in all")
-    assert before < UNTRAINED_F1
-    assert after >= TRAINED_F1, f"trained F1 {after:.3f} < {TRAINED_F1}"
-    assert seconds < 300
+    margins = floor_margins(metrics)["directed"]
+    scores = {m: metrics["directed"][m]["f1"] for m in ("topo", "junction_topo")}
+    print(f"{split} {modality}: directed F1 {scores}, floor {metrics['floor']['f1']['directed']}, "
+          f"margins {margins}; {summary}; {seconds:.0f} s in all")  # fmt: skip
+    assert scores["topo"] >= bar, f"directed TOPO F1 {scores['topo']:.3f} < {bar}"
+    assert margins["topo"] >= TOPO_MARGIN, f"TOPO F1 only {margins['topo']:+.3f} over the blind floor"
+    assert margins["junction_topo"] >= JUNCTION_MARGIN, (
+        f"Junction TOPO F1 only {margins['junction_topo']:+.3f} over the blind floor"
+    )
+    assert seconds < WALL_SECONDS

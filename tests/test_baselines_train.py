@@ -35,6 +35,19 @@ def front_camera_pose(yaw: float) -> np.ndarray:
     return pose
 
 
+def cli_train_toy(data: Path, run: Path) -> None:
+    """`cli train` of a tiny LiDAR LaneGAP for one epoch on a toy dataset, validated on its train split."""
+    from typer.testing import CliRunner
+
+    from cli import app
+
+    args = ["train", "--data", str(data), "--out", str(run), "--preset", "tiny", "--modality", "lidar",
+            "--epochs", "1", "--batch-size", "2", "--path-points", "10", "--no-aux-seg",
+            "--set", "train.threads=1", "--set", "train.val_split=train"]  # fmt: skip
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+
+
 def write_toy_dataset(root: Path, frames: int = 6, split: str = "train") -> Path:
     """A prepared dataset at root/prepared whose sensors lie under root/raw: straight lanes at random x."""
     rng = np.random.default_rng(0)
@@ -200,11 +213,7 @@ def test_cli_train_then_eval(tmp_path):
 
     data = write_toy_dataset(tmp_path, frames=4)
     run = tmp_path / "run"
-    args = ["train", "--data", str(data), "--out", str(run), "--preset", "tiny", "--modality", "lidar",
-            "--epochs", "1", "--batch-size", "2", "--path-points", "10", "--no-aux-seg",
-            "--set", "train.threads=1", "--set", "train.val_split=train"]  # fmt: skip
-    result = CliRunner().invoke(app, args)
-    assert result.exit_code == 0, result.output
+    cli_train_toy(data, run)
     config = Config.load(run / "config.json")
     assert config.preset == "tiny" and config.decoder.path_points == 10 and not config.decoder.aux_seg
     result = CliRunner().invoke(app, ["eval", "--run", str(run), "--device", "cpu"])

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from test_baselines_train import write_toy_dataset
+from test_baselines_train import cli_train_toy, write_toy_dataset
 from typer.testing import CliRunner
 
 from baselines import floor as floor_module
@@ -82,11 +82,7 @@ def two_log_run(tmp_path_factory):
     log_ids = ["a" if int(f.rsplit("/", 1)[1]) < 2 else "b" for f in frames["frame_id"].to_pylist()]
     pq.write_table(frames.set_column(frames.schema.get_field_index("log_id"), "log_id", [log_ids]), shard)
     run = root / "run"
-    args = ["train", "--data", str(data), "--out", str(run), "--preset", "tiny", "--modality", "lidar",
-            "--epochs", "1", "--batch-size", "2", "--path-points", "10", "--no-aux-seg",
-            "--set", "train.threads=1", "--set", "train.val_split=train"]  # fmt: skip
-    result = CliRunner().invoke(app, args)
-    assert result.exit_code == 0, result.output
+    cli_train_toy(data, run)
     return run, data
 
 

@@ -423,6 +423,7 @@ def test_av2_sensors_load_through_the_av2_api(av2_logs, world_of):
         for path in sweeps:
             sweep = Sweep.from_feather(path)
             xyz.append(poses[sweep.timestamp_ns].transform_point_cloud(sweep.xyz))
+            assert 80_000 < len(sweep.xyz) < 115_000  # two VLP-32C in a city: ~100,000 points
             intensity.append(sweep.intensity)
         assert_paint_is_bright_in_lidar(world, np.concatenate(xyz), np.concatenate(intensity))
         for spec in AV2_CAMERAS:
@@ -488,6 +489,7 @@ def test_nuscenes_sensors_load_through_the_devkit(nusc, out, world_of):
         assert sorted(sample["data"]) == sorted(["LIDAR_TOP"] + [c.name for c in NUSCENES_CAMERAS])
         lidar = nusc.get("sample_data", sample["data"]["LIDAR_TOP"])
         cloud = LidarPointCloud.from_file(str(out / "nuscenes" / lidar["filename"]))
+        assert 26_000 < cloud.nbr_points() < 38_000  # an HDL-32E in a city: ~34,000 points
         lidar_to_world = to_world(nusc.get("ego_pose", lidar["ego_pose_token"])) @ to_world(
             nusc.get("calibrated_sensor", lidar["calibrated_sensor_token"]))  # fmt: skip
         xyz.setdefault(world.index, []).append(

@@ -75,6 +75,7 @@ def write_sensors(world: World, plan: LogPlan, av2_log_dir: Path, nuscenes_root:
             path = av2_log_dir / "sensors" / "cameras" / model.spec.name / f"{ns}.jpg"
             path.write_bytes(encode_jpeg(render(model, texture, pose, lighting, noise)))
         obstacles = [Box(c.x, c.y, c.heading, c.length, c.width, c.height) for c in cuboids] + poles
+        obstacles += world.buildings
         sweep = Sweep.merge([cast(rays, texture, pose, obstacles, rng) for rays in rig.av2_lidars])
         av2_writer.write_sweep(av2_log_dir / "sensors" / "lidar" / f"{ns}.feather", sweep)
         sweep = cast(rig.nuscenes_lidar, texture, pose, obstacles, rng)

@@ -106,6 +106,7 @@ class World:
     parked_cars: list[Box]
     crosswalks: list[Crosswalk]
     poles: list[tuple[float, float]]  # street lights beside the roads (LiDAR clutter)
+    buildings: list[Box]  # set back from the kerbs: what the upper LiDAR lasers return from
     canvas: tuple[float, float]  # the map covers [0, w] x [0, h]
 
     @property
@@ -150,6 +151,7 @@ class _Parts:
     route_foci: dict[str, list[tuple[int, tuple[float, float]]]]  # kind -> (focus lane, focus point)
     kerbs: list[tuple[Road, int, str]]  # (road, side, "cars" or "poles"); side -1 is right of the reference
     crossing_roads: list[Road]  # roads with a crossing at their start
+    roads: list[Road]  # every road, for the buildings along them
 
 
 def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) -> _Parts | None:
@@ -353,7 +355,8 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     kerbs += [(road, 1, "poles") for road in [*arms.values(), *cross_roads]]
     kerbs += [(stem, 1, "cars")]
     crossing_roads = [*arms.values(), *cross_roads]
-    return _Parts(net, landmarks, foci, kerbs, crossing_roads)
+    roads = [*arms.values(), *cross_roads, *roundabout_arms]
+    return _Parts(net, landmarks, foci, kerbs, crossing_roads, roads)
 
 
 def _overlaps(net: Network, clearance: float = 0.5) -> bool:
@@ -392,12 +395,13 @@ def _world(seed: int, index: int, parts: _Parts, rng: np.random.Generator) -> Wo
     poles = [p for road, side, what in parts.kerbs if what == "poles" for p in _poles(road, side)]
     poles = [p for p in poles if lanes_area.distance(shapely.Point(p)) > 0.5]
     crosswalks = [_crosswalk(road) for road in parts.crossing_roads]
+    buildings = _buildings(rng, parts.roads, lanes_area)
     xy = np.concatenate([net.lanes[i].boundary(side).points()[:, :2] for i in net.lanes for side in SIDES])
     canvas = tuple(float(math.ceil(v + MAP_MARGIN_M)) for v in xy.max(axis=0))
     assert xy.min() > MAP_MARGIN_M / 2, "the map must stay in positive coordinates"
     routes = _routes(net, parts.route_foci, rng)
     return World(seed, index, dict(sorted(net.lanes.items())), parts.landmarks, routes, cars, crosswalks,
-                 poles, canvas)  # fmt: skip
+                 poles, buildings, canvas)  # fmt: skip
 
 
 ROUTE_LENGTH_M = 260.0  # enough for 20 frames 1 s apart at 12 m/s, plus the lead car's gap
@@ -467,6 +471,30 @@ def _parked_cars(rng: np.random.Generator, road: Road, side: int) -> list[Box]:
         length, width, height = rng.uniform(4.3, 4.9), rng.uniform(1.8, 1.95), rng.uniform(1.45, 1.7)
         cars.append(Box(*(float(v) for v in (x, y, heading, length, width, height))))
     return cars
+
+
+def _buildings(rng: np.random.Generator, roads: list[Road], lanes_area) -> list[Box]:
+    """Blocks along both sides of every road, 6-12 m behind the kerb, at least 4 m from any lane and
+    apart from each other."""
+    buildings: list[Box] = []
+    footprints: list[shapely.Polygon] = []
+    for road in roads:
+        for side in (-1, 1):
+            kerb = road.half_widths[0 if side < 0 else 1]
+            for piece in road.reference:
+                for s in np.arange(rng.uniform(0, 10), piece.length, 20.0):
+                    x, y, heading = piece.at(s)[0]
+                    length, depth, height = rng.uniform(10, 18), rng.uniform(8, 14), rng.uniform(6, 20)
+                    left = side * (kerb + rng.uniform(6, 12) + depth / 2)
+                    box = Box(float(x - left * math.sin(heading)), float(y + left * math.cos(heading)),
+                              float(heading), float(length), float(depth), float(height))  # fmt: skip
+                    footprint = _footprint(box)
+                    if lanes_area.distance(footprint) > 4.0 and not any(
+                        footprint.intersects(f) for f in footprints
+                    ):
+                        buildings.append(box)
+                        footprints.append(footprint)
+    return buildings
 
 
 def _poles(road: Road, side: int, spacing: float = 30.0) -> list[tuple[float, float]]:

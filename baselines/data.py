@@ -111,6 +111,15 @@ def lane_mask_from_paths(paths_unit: np.ndarray, bev_h: int, bev_w: int) -> np.n
     return mask.astype(np.int64)
 
 
+def dataset_range(data_dir: Path) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    """(x_range, y_range) in metres that a prepared dataset was cropped to (its manifest), if recorded."""
+    manifest_path = Path(data_dir) / "manifest.json"
+    if not manifest_path.is_file():
+        return None
+    crop = json.loads(manifest_path.read_text()).get("range")
+    return ((crop["x_min"], crop["x_max"]), (crop["y_min"], crop["y_max"])) if crop else None
+
+
 class PreparedDataset(torch.utils.data.Dataset):
     """The frames of one split of a prepared dataset, with their sensors and targets."""
 
@@ -120,6 +129,15 @@ class PreparedDataset(torch.utils.data.Dataset):
         manifest_path = self.data_dir / "manifest.json"
         manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
         self.sensor_root = Path(config.data.sensor_root or manifest.get("root", self.data_dir))
+        crop = dataset_range(self.data_dir)
+        model_range = (tuple(config.encoder.x_range), tuple(config.encoder.y_range))
+        if crop is not None and tuple(map(tuple, crop)) != model_range:
+            # targets outside the model's grid would be silently wrong (unit coordinates beyond [0, 1])
+            raise ValueError(
+                f"{manifest_path}: the dataset is cropped to x {crop[0]}, y {crop[1]} m but the model's BEV "
+                f"grid covers x {model_range[0]}, y {model_range[1]} m; train on it (cli train takes the "
+                "dataset's range) or re-prepare with that --range"
+            )
         in_split = pc.field("split") == split
         frames = read_table(self.data_dir, "frames", filter=in_split).sort_by("frame_id").to_pylist()
         if not frames:

@@ -24,7 +24,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
 
 from baselines.config import Config
-from baselines.data import PreparedDataset, collate
+from baselines.data import PreparedDataset, collate, dataset_range
 from baselines.lanegap import LaneGAP, LaneGAPLoss
 
 console = Console(stderr=True)
@@ -112,6 +112,13 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     if train_config.batch_size % world_size:
         raise ValueError(f"batch size {train_config.batch_size} is not divisible by {world_size} processes")
 
+    crop = dataset_range(data_dir)
+    if crop is not None and (tuple(config.encoder.x_range), tuple(config.encoder.y_range)) != crop:
+        # the BEV grid covers what the dataset was cropped to (its cells grow or shrink with it)
+        if master:
+            Console().print(f"BEV range from the dataset: x {crop[0]}, y {crop[1]} m (the preset had "
+                            f"x {config.encoder.x_range}, y {config.encoder.y_range})")  # fmt: skip
+        config.encoder.x_range, config.encoder.y_range = crop
     # The same seed on every rank builds the same model; the ranks' streams differ from here on.
     torch.manual_seed(train_config.seed)
     model = LaneGAP(config).to(device)

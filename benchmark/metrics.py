@@ -960,15 +960,15 @@ def _draw(xy, src, dst, x_min, y_max, res, rows, cols, half_width):
 
 def draw(graph: LaneGraph, params: MetricParams) -> np.ndarray:
     """The graph on the BEV grid of docs/DATA.md, params.miou_line_width wide (cells by centre)."""
-    rng = Range.parse(params.bev_range)
+    crop = Range.parse(params.bev_range)
     res = params.miou_resolution
-    rows, cols = round((rng.y_max - rng.y_min) / res), round((rng.x_max - rng.x_min) / res)
+    rows, cols = round((crop.y_max - crop.y_min) / res), round((crop.x_max - crop.x_min) / res)
     xy = np.stack([np.asarray(graph.x, np.float64), np.asarray(graph.y, np.float64)], axis=1)
     # repeats and both ways draw the same cells; a vertex with no edge is drawn as a dot
     lonely = np.flatnonzero(np.bincount(np.concatenate([graph.src, graph.dst]), minlength=len(xy)) == 0)
     src = np.concatenate([np.asarray(graph.src, np.int64), lonely])
     dst = np.concatenate([np.asarray(graph.dst, np.int64), lonely])
-    return _draw(xy, src, dst, rng.x_min, rng.y_max, res, rows, cols, params.miou_line_width / 2 + EPS)
+    return _draw(xy, src, dst, crop.x_min, crop.y_max, res, rows, cols, params.miou_line_width / 2 + EPS)
 
 
 @dataclass

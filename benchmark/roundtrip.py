@@ -55,12 +55,12 @@ def rebuild(data: Path, via: str, frame_ids: list[str], merge_radius: float) -> 
             links.setdefault(f, []).append((i, j))
         return {f: piece2graph(pieces.get(f, []), np.array(links.get(f, []))) for f in frame_ids}
     if via == "pixel":
-        rng = Range.parse(default_range(data))
+        crop = Range.parse(default_range(data))
         wanted = ds_field("frame_id").isin(frame_ids)
         out = {}
         for row in read_table(data, "rasters", filter=wanted).to_pylist():
             mask, direction = decode_raster(row)
-            grid = RasterGrid(rng.x_min, rng.y_max, float(row["resolution"]))
+            grid = RasterGrid(crop.x_min, crop.y_max, float(row["resolution"]))
             out[row["frame_id"]] = pixel2graph(mask, direction, grid)
         return {f: out.get(f, LaneGraph.empty()) for f in frame_ids}
     raise ValueError(f"via must be one of {', '.join(VIAS)}, not {via!r}")

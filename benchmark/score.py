@@ -142,7 +142,7 @@ def default_range(gt_path: Path) -> str:
     """The perception range a prepared dataset was cut to (its manifest), else 30x60."""
     manifest = Path(gt_path) / "manifest.json"
     if manifest.is_file():
-        return json.loads(manifest.read_text()).get("parameters", {}).get("rng", "30x60")
+        return json.loads(manifest.read_text()).get("parameters", {}).get("bev_range", "30x60")
     return "30x60"
 
 

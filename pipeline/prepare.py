@@ -90,7 +90,7 @@ def load_job(job: Job, frame_stride: int, options: TargetOptions) -> Log:
         return av2.load_log(job.root, job.split, job.ref, frame_stride)
     from pipeline.adapters import nuscenes
 
-    log = nuscenes.load_log(job.ref, options.rng.radius)
+    log = nuscenes.load_log(job.ref, options.bev_range.radius)
     log.frames = log.frames[::frame_stride]
     return log
 
@@ -292,7 +292,7 @@ def prepare(
     else:
         jobs, left_out = find_jobs(dataset, root, version, split, frame_stride), 0
     options_dict = asdict(options)
-    options_dict["rng"] = options.rng.text
+    options_dict["bev_range"] = options.bev_range.text
     parameters = {**options_dict, "frame_stride": frame_stride}
     if split_files:
         parameters["split_files"] = {name: str(Path(path).resolve()) for name, path in split_files.items()}
@@ -367,8 +367,8 @@ def prepare(
             "root": str(root),
             "version": version if dataset == "nuscenes" else None,
             "parameters": {**parameters, "split": split},
-            "range": {"x_min": options.rng.x_min, "x_max": options.rng.x_max,
-                      "y_min": options.rng.y_min, "y_max": options.rng.y_max},
+            "range": {"x_min": options.bev_range.x_min, "x_max": options.bev_range.x_max,
+                      "y_min": options.bev_range.y_min, "y_max": options.bev_range.y_max},
             "packages": package_versions(),
             "rows": {table: io.count_rows(out, table) for table in io.TABLES},
             "last_run": summary,

@@ -15,7 +15,7 @@ SUBPIXEL_BITS = 4  # cv2 draws with fixed-point coordinates: 1/16 pixel
 
 @dataclass(frozen=True)
 class Grid:
-    rng: Range
+    bev_range: Range
     resolution: float = 0.15
     line_width: int = 5
     direction_bins: int = 36
@@ -23,13 +23,15 @@ class Grid:
     @property
     def shape(self) -> tuple[int, int]:
         """(rows along y, columns along x); row 0 is the front edge."""
-        rows = round((self.rng.y_max - self.rng.y_min) / self.resolution)
-        cols = round((self.rng.x_max - self.rng.x_min) / self.resolution)
+        rows = round((self.bev_range.y_max - self.bev_range.y_min) / self.resolution)
+        cols = round((self.bev_range.x_max - self.bev_range.x_min) / self.resolution)
         return rows, cols
 
     def to_pixels(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Continuous (column, row) coordinates; pixel centres sit at integer + 0.5."""
-        return np.stack([(x - self.rng.x_min) / self.resolution, (self.rng.y_max - y) / self.resolution], -1)
+        return np.stack(
+            [(x - self.bev_range.x_min) / self.resolution, (self.bev_range.y_max - y) / self.resolution], -1
+        )
 
     def direction_bin(self, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
         """1 + floor(theta / bin width) for theta = atan2(dy, dx) in [0, 360) degrees."""

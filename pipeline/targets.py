@@ -16,7 +16,7 @@ from pipeline.records import Lane
 
 @dataclass(frozen=True)
 class TargetOptions:
-    rng: Range = field(default_factory=Range)
+    bev_range: Range = field(default_factory=Range)
     path_points: int = 30
     piece_points: int = 20
     max_paths: int = 256
@@ -25,7 +25,7 @@ class TargetOptions:
 
     @property
     def grid(self) -> Grid:
-        return Grid(self.rng, self.resolution, self.line_width)
+        return Grid(self.bev_range, self.resolution, self.line_width)
 
 
 @dataclass
@@ -74,7 +74,7 @@ def warm_up() -> None:
 
 
 def frame_targets(lane_map: LaneMap, ego_to_world: np.ndarray, options: TargetOptions) -> FrameTargets:
-    graph = crop_lane_graph(lane_map, rigid_inverse(ego_to_world), options.rng)
+    graph = crop_lane_graph(lane_map, rigid_inverse(ego_to_world), options.bev_range)
     pieces = graph_to_pieces(graph)
     paths = pieces_to_paths(pieces, len(graph.x), options.max_paths)
     path_points, path_lengths = resample(paths.vertex_ids, graph, options.path_points)

@@ -226,3 +226,19 @@ def test_cli_train_then_eval(tmp_path):
     assert metrics["config"]["encoder"]["modality"] == "lidar"
     predictions = pq.read_table(run / "predictions.parquet")
     assert predictions.schema.equals(io.SCHEMAS["graphs"]) and predictions.num_rows == 4
+
+
+def test_the_bev_grid_follows_the_dataset_range(tmp_path):
+    """A model never reads targets cut to another range: training takes the dataset's, a dataset of
+    another range than a trained model's is a clear error."""
+    data = write_toy_dataset(tmp_path, frames=4)
+    manifest = json.loads((data / "manifest.json").read_text())
+    manifest["range"] = {"x_min": -25.0, "x_max": 25.0, "y_min": -50.0, "y_max": 50.0}
+    (data / "manifest.json").write_text(json.dumps(manifest))
+    config = toy_config(epochs=1)
+    with pytest.raises(ValueError, match="cropped to x \\(-25.0, 25.0\\)"):
+        PreparedDataset(data, "train", config)
+    train(config, data, tmp_path / "run")
+    saved = Config.load(tmp_path / "run" / "config.json")
+    assert saved.encoder.x_range == (-25.0, 25.0) and saved.encoder.y_range == (-50.0, 50.0)
+    assert len(PreparedDataset(data, "train", saved)) == 4

@@ -187,8 +187,6 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     # neighbour's axis at h / tan(gap / 2)
     distance = max(max(half[i], half[(i + 1) % count]) / math.tan(gaps[i] / 2) + 3.0 for i in range(count))
     arms: dict[str, Road] = {}
-    foci: dict[str, list] = {}
-    kerbs: list[tuple[Road, int, str]] = []
     for role, heading in zip(roles, headings, strict=True):
         start = along(Pose(ox, oy, float(heading)), distance)
         forward, backward, lane_width = spec[role]
@@ -199,7 +197,7 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
         elif role == "ramp":
             fork_at, rest = rng.uniform(25, 40), rng.uniform(20, 40)
             ramp_angle = math.radians(rng.uniform(20, 30))
-            lateral = rng.uniform(forward * 0 + lane_width + 1.5, lane_width + 4.0)  # how far out it swings
+            lateral = rng.uniform(lane_width + 1.5, lane_width + 4.0)  # how far out it swings
             ramp_radius = lateral / (2 * (1 - math.cos(ramp_angle)))
             ramp_straight = rng.uniform(6, 20)
             span = 4 * ramp_radius * math.sin(ramp_angle) + ramp_straight
@@ -331,12 +329,11 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
         return lane, tuple(float(v) for v in path.at(path.length / 2)[0, :2])
 
     plain = [i for i, lane in net.lanes.items() if not lane.is_intersection]
+    # the outer forward lane segment that the S-bend view stands on
+    view_xy = np.array([reentering_view.x, reentering_view.y])
     ego_lane = min(
-        stem.forward[-1],
-        key=lambda i: np.hypot(
-            *(net.lanes[i].centerline()[:, :2] - [reentering_view.x, reentering_view.y]).T
-        ).min(),
-    )  # noqa: E501
+        stem.forward[-1], key=lambda i: np.hypot(*(net.lanes[i].centerline()[:, :2] - view_xy).T).min()
+    )
     foci = {  # the hard cases first: a dataset of few logs still sees them
         "roundabout": [(street.forward[0][-1], (view.x, view.y))],
         "fork": [(ramp[0], tuple(float(v) for v in net.lanes[fork_lane].path.end.xy))],

@@ -188,7 +188,7 @@ def eval_(
             table.add_row(*row)
     for name in ("precision", "recall"):
         table.add_row(f"directed TOPO {name}", cell(metrics["directed"]["topo"][name]))
-    for name in ("params", "fps_net", "fps", "device"):
+    for name in ("model", "modeling", "params", "gflops", "fps_net", "fps", "postprocess_ms", "device"):
         value = metrics[name]
         table.add_row(name, f"{value:.2f}" if isinstance(value, float) else str(value))
     Console().print(table)

@@ -19,11 +19,12 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import torch
 from torch.utils.data import DataLoader
+from torch.utils.flop_counter import FlopCounterMode
 
 from baselines.config import Config
 from baselines.data import PreparedDataset, collate
 from baselines.floor import blind_floor, floor_margins
-from baselines.lanegap import LaneGAP, select_paths
+from baselines.lanegap import MODELING, LaneGAP, select_paths
 from baselines.train import amp_settings
 from benchmark.metrics import MetricParams
 from benchmark.path2graph import path2graph
@@ -79,8 +80,13 @@ def evaluate(
 
     rows, predictions = [], {}
     net_seconds = total_seconds = 0.0
+    gflops = 0.0
     for index, batch in enumerate(loader):
         sensors = batch.sensors.to(device_)
+        if index == 0:  # a cost that does not depend on the machine: matmul and conv FLOPs of one frame
+            with torch.no_grad(), FlopCounterMode(display=False) as counter:
+                model(sensors)
+            gflops = counter.get_total_flops() / 1e9
         sync()
         start = time.perf_counter()
         autocast = torch.autocast(device_.type, dtype=autocast_dtype) if autocast_dtype else nullcontext()
@@ -113,8 +119,14 @@ def evaluate(
         "split": split,
         "data": str(data_dir),
         "params": sum(p.numel() for p in model.parameters()),
+        "model": config.model,
+        "modeling": MODELING,
+        # torch's FLOP counter (forward pass, batch 1): matmuls and convolutions; the deformable
+        # attention's bilinear sampling and the LiDAR scatter are not counted
+        "gflops": gflops,
         "fps_net": timed / net_seconds if net_seconds else 0.0,
         "fps": timed / total_seconds if total_seconds else 0.0,
+        "postprocess_ms": 1000 * (total_seconds - net_seconds) / timed if timed else 0.0,
         "device": torch.cuda.get_device_name(device_) if device_.type == "cuda" else "cpu",
     }
     if floor:

@@ -23,6 +23,8 @@ from baselines.config import Config, DecoderConfig
 from baselines.encoder import BEVEncoder, FeedForward, SensorBatch
 from baselines.matcher import hungarian_match
 
+MODELING = "path"  # the paper's family: pixel-wise, piece-wise or path-wise
+
 
 def bernstein_matrix(num_points: int, num_controls: int) -> torch.Tensor:
     """(num_points, num_controls): row i is the Bernstein basis of degree K - 1 at t_i = i / (N - 1),

@@ -222,7 +222,8 @@ def test_cli_train_then_eval(tmp_path):
     assert metrics["frames"] == 4 and metrics["split"] == "train" and metrics["device"] == "cpu"
     assert 0 <= metrics["directed"]["topo"]["f1"] <= 1 and metrics["params"] > 0
     assert metrics["metric_params"]["match_radius"] == 0.45
-    assert metrics["fps_net"] >= metrics["fps"] > 0
+    assert metrics["fps_net"] >= metrics["fps"] > 0 and metrics["postprocess_ms"] > 0
+    assert metrics["model"] == "lanegap" and metrics["modeling"] == "path" and metrics["gflops"] > 0.01
     assert metrics["config"]["encoder"]["modality"] == "lidar"
     predictions = pq.read_table(run / "predictions.parquet")
     assert predictions.schema.equals(io.SCHEMAS["graphs"]) and predictions.num_rows == 4

@@ -9,6 +9,7 @@ only, and with post-processing: path selection and Path2Graph), the device, the 
 from __future__ import annotations
 
 import json
+import pickle
 import time
 from contextlib import nullcontext
 from pathlib import Path
@@ -36,7 +37,14 @@ from pipeline.lane_graph import LaneGraph
 def load_model(run_dir: Path, device: torch.device) -> tuple[LaneGAP, Config]:
     config = Config.load(run_dir / "config.json")
     model = LaneGAP(config)
-    checkpoint = torch.load(run_dir / "checkpoint.pt", map_location="cpu", weights_only=False)
+    path = run_dir / "checkpoint.pt"
+    try:  # weights_only: a checkpoint from elsewhere cannot run code
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as error:
+        raise ValueError(
+            f"{path}: refused: it holds objects other than tensors and plain values, which are never "
+            "unpickled (runs trained before 2026-12-01 stored numpy state: retrain)"
+        ) from error
     model.load_state_dict(checkpoint["model"])
     return model.to(device).eval(), config
 

@@ -55,9 +55,10 @@ def build_optimizer(model: torch.nn.Module, config: Config) -> torch.optim.AdamW
 
 
 def rng_state() -> dict:
-    return {
+    name, keys, position, has_gauss, cached = np.random.get_state()
+    return {  # plain types and tensors only: checkpoints load with weights_only=True (no pickle)
         "python": random.getstate(),
-        "numpy": np.random.get_state(),
+        "numpy": [name, keys.tolist(), position, has_gauss, cached],
         "torch": torch.get_rng_state(),
         "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
     }
@@ -65,7 +66,8 @@ def rng_state() -> dict:
 
 def set_rng_state(state: dict) -> None:
     random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
+    name, keys, position, has_gauss, cached = state["numpy"]
+    np.random.set_state((name, np.array(keys, np.uint32), position, has_gauss, cached))
     torch.set_rng_state(state["torch"])
     if state["cuda"] and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(state["cuda"])
@@ -153,7 +155,7 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     start_epoch, step = 0, 0
     checkpoint_path = out_dir / "checkpoint.pt"
     if resume:
-        checkpoint = torch.load(checkpoint_path, map_location=device, weights_only=False)
+        checkpoint = torch.load(checkpoint_path, map_location=device, weights_only=True)
         model.load_state_dict(checkpoint["model"])
         optimizer.load_state_dict(checkpoint["optimizer"])
         scheduler.load_state_dict(checkpoint["scheduler"])

@@ -131,7 +131,7 @@ class PreparedDataset(torch.utils.data.Dataset):
         self.sensor_root = Path(config.data.sensor_root or manifest.get("root", self.data_dir))
         crop = dataset_range(self.data_dir)
         model_range = (tuple(config.encoder.x_range), tuple(config.encoder.y_range))
-        if crop is not None and tuple(map(tuple, crop)) != model_range:
+        if crop is not None and crop != model_range:
             # targets outside the model's grid would be silently wrong (unit coordinates beyond [0, 1])
             raise ValueError(
                 f"{manifest_path}: the dataset is cropped to x {crop[0]}, y {crop[1]} m but the model's BEV "

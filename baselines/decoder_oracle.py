@@ -10,7 +10,6 @@ is the limit.
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from pathlib import Path
 
@@ -29,19 +28,15 @@ from benchmark.metrics import MetricParams
 from benchmark.path2graph import path2graph
 from benchmark.score import default_range, graphs_from_table, read_graph_table, score_pairs
 from pipeline.io import decode_raster, read_table
-
-DIRECTION_BINS = 36  # pipeline.raster's default
+from pipeline.raster import direction_vectors
 
 
 def oracle_bev(row: dict, pool: int) -> torch.Tensor:
     """(3, H / pool, W / pool): lane mask, cos and sin of the lane direction, averaged over pool x pool."""
     mask, direction = decode_raster(row)
-    angle = (direction.astype(np.float32) - 0.5) * (2 * math.pi / DIRECTION_BINS)  # bin centres
-    lane = direction > 0
-    channels = np.stack(
-        [mask.astype(np.float32), np.where(lane, np.cos(angle), 0.0), np.where(lane, np.sin(angle), 0.0)]
-    )
-    return F.avg_pool2d(torch.from_numpy(channels.astype(np.float32))[None], pool)[0]
+    vectors = direction_vectors()[direction]  # (H, W, 2), zero off the lanes
+    channels = np.concatenate([mask[None].astype(np.float32), vectors.transpose(2, 0, 1).astype(np.float32)])
+    return F.avg_pool2d(torch.from_numpy(channels)[None], pool)[0]
 
 
 class OracleLaneGAP(nn.Module):

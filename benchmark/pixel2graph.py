@@ -28,6 +28,7 @@ from skimage.measure import approximate_polygon
 from skimage.morphology import skeletonize
 
 from pipeline.lane_graph import LaneGraph
+from pipeline.raster import direction_vectors
 
 NEIGHBOURS = [(-1, 0), (0, -1), (0, 1), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)]  # 4-neighbours first
 
@@ -117,10 +118,7 @@ def pixel2graph(
     node, branches = trace(neighbours)
     res = grid.resolution
     xy = np.stack([grid.x_min + (pixels[:, 1] + 0.5) * res, grid.y_max - (pixels[:, 0] + 0.5) * res], axis=1)
-    angle = np.radians((np.arange(grid.direction_bins + 1) - 0.5) * 360.0 / grid.direction_bins)
-    bin_vector = np.stack([np.cos(angle), np.sin(angle)], axis=1)
-    bin_vector[0] = 0.0  # background: no direction
-    pixel_vector = bin_vector[np.asarray(direction)[pixels[:, 0], pixels[:, 1]]]
+    pixel_vector = direction_vectors(grid.direction_bins)[np.asarray(direction)[pixels[:, 0], pixels[:, 1]]]
 
     # nodes: one vertex each, at the mean of its pixels
     node_ids, node_of = np.unique(node[node >= 0], return_inverse=True)

@@ -13,6 +13,15 @@ from pipeline.lane_graph import LaneGraph
 SUBPIXEL_BITS = 4  # cv2 draws with fixed-point coordinates: 1/16 pixel
 
 
+def direction_vectors(direction_bins: int = 36) -> np.ndarray:
+    """(direction_bins + 1, 2): the unit vector (x, y) of each direction bin's centre angle, indexed by the
+    bin value (Grid.direction_bin); row 0, no lane, is zero. `direction_vectors()[raster]` decodes a map."""
+    angle = np.radians((np.arange(direction_bins + 1) - 0.5) * 360.0 / direction_bins)
+    vectors = np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    vectors[0] = 0.0
+    return vectors
+
+
 @dataclass(frozen=True)
 class Grid:
     bev_range: Range

@@ -27,6 +27,11 @@ class Pose:
     def xy(self) -> np.ndarray:
         return np.array([self.x, self.y])
 
+    def moved(self, forward: float = 0.0, left: float = 0.0) -> Pose:
+        """The pose `forward` metres ahead and `left` metres to the left (negative: right), same heading."""
+        c, s = math.cos(self.heading), math.sin(self.heading)
+        return Pose(self.x + forward * c - left * s, self.y + forward * s + left * c, self.heading)
+
 
 @dataclass(frozen=True)
 class Piece:
@@ -55,8 +60,7 @@ class Piece:
 
     def offset(self, left: float) -> Piece:
         """The parallel curve `left` metres to the left (negative: to the right)."""
-        h = self.start.heading
-        start = Pose(self.start.x - left * math.sin(h), self.start.y + left * math.cos(h), h)
+        start = self.start.moved(left=left)
         stretch = 1.0 - self.curvature * left  # arcs get shorter on their inside
         if stretch <= 0:
             raise ValueError(f"offset {left} m crosses the centre of an arc of radius {1 / self.curvature} m")

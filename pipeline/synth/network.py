@@ -65,6 +65,10 @@ class Road:
         """How far the road's kerbs lie right (forward lanes) and left (backward lanes) of its reference."""
         return len(self.forward) * self.width, len(self.backward) * self.width
 
+    def kerb(self, side: int) -> float:
+        """How far the kerb on `side` (-1: right, the forward lanes; +1: left) lies from the reference."""
+        return self.half_widths[0 if side < 0 else 1]
+
     def port(self, at_start: bool) -> Port:
         if at_start:
             return Port(

@@ -93,6 +93,8 @@ AV2_CAMERAS = [
 
 
 def quaternion_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a w, x, y, z quaternion (here, not pipeline.geometry.pose_matrix: that module
+    imports numba, and `cli synth` stays quick to start)."""
     w, x, y, z = q
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],

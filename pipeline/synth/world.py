@@ -165,10 +165,6 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     def width() -> float:
         return float(rng.uniform(3.0, 3.8))
 
-    def along(pose: Pose, distance: float, left: float = 0.0) -> Pose:
-        c, s = math.cos(pose.heading), math.sin(pose.heading)
-        return Pose(pose.x + distance * c - left * s, pose.y + distance * s + left * c, pose.heading)
-
     # main junction: 4 or 5 arms, at irregular angles, each with its role
     count = int(rng.choice([4, 5]))
     headings = (
@@ -188,7 +184,7 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     distance = max(max(half[i], half[(i + 1) % count]) / math.tan(gaps[i] / 2) + 3.0 for i in range(count))
     arms: dict[str, Road] = {}
     for role, heading in zip(roles, headings, strict=True):
-        start = along(Pose(ox, oy, float(heading)), distance)
+        start = Pose(ox, oy, float(heading)).moved(distance)
         forward, backward, lane_width = spec[role]
         if role == "roundabout":
             steps = [("S", rng.uniform(45, 75))]
@@ -217,7 +213,7 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     ring_radius = float(rng.uniform(9.5, 12.0))
     arm_out = arm_distance(ring_radius, ENTRY_RADIUS, street.width / 2)
     street_end = street.reference[-1].end
-    ring_centre = along(street_end, arm_out)
+    ring_centre = street_end.moved(arm_out)
     # the other arms' outward headings: at least min_gap apart (ring segments of >= 5 m between them)
     theta = math.atan2(street.width / 2 + ENTRY_RADIUS, arm_out)
     min_gap = 2 * theta + 5.0 / ring_radius
@@ -230,7 +226,7 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     roundabout_arms = [
         net.road(
             f"roundabout_arm{k}",
-            along(Pose(ring_centre.x, ring_centre.y, float(h)), arm_out),
+            Pose(ring_centre.x, ring_centre.y, float(h)).moved(arm_out),
             [("S", rng.uniform(30, 45))],
             1,
             1,
@@ -242,8 +238,8 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
         "roundabout", ring_centre, ring_radius, ENTRY_RADIUS,
         [street.port(False)] + [a.port(True) for a in roundabout_arms],
     )  # fmt: skip
-    view = along(
-        Pose(ring_centre.x, ring_centre.y, street_end.heading), -(ring_radius + 6.0), -street.width / 2
+    view = Pose(ring_centre.x, ring_centre.y, street_end.heading).moved(
+        -(ring_radius + 6.0), -street.width / 2
     )
 
     # the T-junction at the end of its arm, its cross road at 75-105 degrees
@@ -251,14 +247,14 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     stem_end = stem.reference[-1].end
     cross_lanes, cross_width = int(rng.integers(1, 3)), width()
     t_distance = max(stem.half_widths) + cross_lanes * cross_width + 3.0
-    t_centre = along(stem_end, t_distance)
+    t_centre = stem_end.moved(t_distance)
     cross = stem_end.heading + math.radians(rng.uniform(75, 105))
     cross_roads = []
     for name, heading in (
         ("t_cross_left", cross),
         ("t_cross_right", cross + math.pi + rng.uniform(-0.15, 0.15)),
     ):
-        start = along(Pose(t_centre.x, t_centre.y, heading), t_distance)
+        start = Pose(t_centre.x, t_centre.y, heading).moved(t_distance)
         cross_roads.append(net.road(name, start, [("S", rng.uniform(45, 70))], cross_lanes, cross_lanes,
                                     cross_width))  # fmt: skip
     t_turns = net.junction("t_junction", [stem.port(False)] + [r.port(True) for r in cross_roads])
@@ -282,7 +278,7 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     bend_radius = bulge / (1 - math.cos(math.radians(bend_deg)))
     gap = float(rng.uniform(11.8, 12.8))
     ego_offset = -(len(stem.forward) - 0.5) * stem.width  # the outer forward lane, left of the reference
-    bend_start = along(stem.reference[0].start, rng.uniform(20, 35), ego_offset - (gap - bulge))
+    bend_start = stem.reference[0].start.moved(rng.uniform(20, 35), ego_offset - (gap - bulge))
     bend = turtle(bend_start, [("S", 5), ("R", bend_radius, bend_deg), ("L", bend_radius, 2 * bend_deg),
                                ("R", bend_radius, bend_deg), ("S", 15)])  # fmt: skip
     peak = bend[2].at(bend[2].length / 2)[0]
@@ -294,7 +290,7 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     station = float(
         (peak[:2] - stem.reference[0].start.xy) @ [math.cos(stem_end.heading), math.sin(stem_end.heading)]
     )
-    reentering_view = along(stem.reference[0].start, station, ego_offset)
+    reentering_view = stem.reference[0].start.moved(station, ego_offset)
 
     curve_arm = arms["curve"]
     curve = sorted(i for lanes_ in curve_arm.forward + curve_arm.backward for i in lanes_
@@ -459,14 +455,13 @@ def _parked_cars(rng: np.random.Generator, road: Road, side: int) -> list[Box]:
     slots = int(reference.length // 8) - 1
     if slots < 1:
         return cars
-    kerb = road.half_widths[0 if side < 0 else 1]
     for s in np.sort(rng.choice(slots, size=min(3, slots), replace=False)) * 8.0 + 6.0:
-        x, y, heading = reference.at(s)[0]
-        left = side * (kerb + 1.2)  # beside the outermost lane's kerb
-        x, y = x - left * math.sin(heading), y + left * math.cos(heading)
-        heading += math.pi if side > 0 else 0.0  # parked in the driving direction of that side
+        spot = Pose(*reference.at(s)[0]).moved(left=side * (road.kerb(side) + 1.2))  # beside the kerb
+        heading = spot.heading + (
+            math.pi if side > 0 else 0.0
+        )  # parked in the driving direction of that side
         length, width, height = rng.uniform(4.3, 4.9), rng.uniform(1.8, 1.95), rng.uniform(1.45, 1.7)
-        cars.append(Box(*(float(v) for v in (x, y, heading, length, width, height))))
+        cars.append(Box(*(float(v) for v in (spot.x, spot.y, heading, length, width, height))))
     return cars
 
 
@@ -477,14 +472,13 @@ def _buildings(rng: np.random.Generator, roads: list[Road], lanes_area) -> list[
     footprints: list[shapely.Polygon] = []
     for road in roads:
         for side in (-1, 1):
-            kerb = road.half_widths[0 if side < 0 else 1]
             for piece in road.reference:
                 for s in np.arange(rng.uniform(0, 10), piece.length, 20.0):
-                    x, y, heading = piece.at(s)[0]
                     length, depth, height = rng.uniform(10, 18), rng.uniform(8, 14), rng.uniform(6, 20)
-                    left = side * (kerb + rng.uniform(6, 12) + depth / 2)
-                    box = Box(float(x - left * math.sin(heading)), float(y + left * math.cos(heading)),
-                              float(heading), float(length), float(depth), float(height))  # fmt: skip
+                    spot = Pose(*piece.at(s)[0]).moved(
+                        left=side * (road.kerb(side) + rng.uniform(6, 12) + depth / 2)
+                    )
+                    box = Box(*(float(v) for v in (spot.x, spot.y, spot.heading, length, depth, height)))
                     footprint = _footprint(box)
                     if lanes_area.distance(footprint) > 4.0 and not any(
                         footprint.intersects(f) for f in footprints
@@ -497,9 +491,8 @@ def _buildings(rng: np.random.Generator, roads: list[Road], lanes_area) -> list[
 def _poles(road: Road, side: int, spacing: float = 30.0) -> list[tuple[float, float]]:
     """Street lights every `spacing` metres, 2.5 m outside the kerb."""
     poles = []
-    kerb = road.half_widths[0 if side < 0 else 1]
     for piece in road.reference:
         for x, y, heading in piece.at(np.arange(5.0, piece.length, spacing)):
-            left = side * (kerb + 2.5)
-            poles.append((float(x - left * math.sin(heading)), float(y + left * math.cos(heading))))
+            spot = Pose(x, y, heading).moved(left=side * (road.kerb(side) + 2.5))
+            poles.append((float(spot.x), float(spot.y)))
     return poles

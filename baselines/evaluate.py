@@ -49,6 +49,15 @@ def load_model(run_dir: Path, device: torch.device) -> tuple[LaneGAP, Config]:
     return model.to(device).eval(), config
 
 
+def count_gflops(model: torch.nn.Module, sensors) -> float:
+    """Forward-pass GFLOPs of one batch by torch's FLOP counter (matmuls and convolutions): a cost that
+    does not depend on the machine. Counted with autograd on: the counter's module hooks need every
+    input that requires grad to have a grad_fn, which a parameter view under no_grad has not."""
+    with FlopCounterMode(display=False) as counter:
+        model(sensors)
+    return counter.get_total_flops() / 1e9
+
+
 def graph_row(frame_id: str, graph: LaneGraph) -> dict:
     return {
         "frame_id": frame_id,
@@ -91,10 +100,8 @@ def evaluate(
     gflops = 0.0
     for index, batch in enumerate(loader):
         sensors = batch.sensors.to(device_)
-        if index == 0:  # a cost that does not depend on the machine: matmul and conv FLOPs of one frame
-            with torch.no_grad(), FlopCounterMode(display=False) as counter:
-                model(sensors)
-            gflops = counter.get_total_flops() / 1e9
+        if index == 0:
+            gflops = count_gflops(model, sensors)
         sync()
         start = time.perf_counter()
         autocast = torch.autocast(device_.type, dtype=autocast_dtype) if autocast_dtype else nullcontext()

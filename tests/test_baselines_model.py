@@ -208,3 +208,19 @@ def test_config_overrides_and_round_trip(tmp_path):
     assert Config.load(tmp_path / "config.json") == config
     with pytest.raises(ValueError):
         apply_overrides(config, ["train.nope=1"])
+
+
+@pytest.mark.parametrize("modality", ["camera", "lidar", "fusion"])
+def test_gflops_are_counted_for_every_modality(modality):
+    """`cli eval`'s FLOP count runs on every encoder (the camera branch once broke torch's counter);
+    fusion costs the sum of its branches plus the fuser, so it counts more than either."""
+    from baselines.evaluate import count_gflops
+
+    counts = {}
+    for name in ("camera", "lidar", modality):
+        config = apply_overrides(tiny(), [f"encoder.modality={name}"])
+        torch.manual_seed(0)
+        counts[name] = count_gflops(LaneGAP(config).eval(), random_batch(batch=1))
+    assert counts["camera"] > 0.01 and counts["lidar"] > 0.01
+    if modality == "fusion":
+        assert counts["fusion"] > max(counts["camera"], counts["lidar"])

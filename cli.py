@@ -1,4 +1,4 @@
-"""Command line of the lane-graph pipeline: synth, prepare, train, eval, score, roundtrip, report.
+"""Command line of the lane-graph pipeline: synth, prepare, train, eval, score, roundtrip, report, viz.
 
 Heavy modules (torch, av2, nuscenes) are imported inside the commands so that `cli --help` is instant.
 """
@@ -241,6 +241,59 @@ def roundtrip(
     with reported_errors():
         result = run_roundtrip(data, via, out, merge_radius, workers, frame_stride)
     typer.echo(json.dumps(result, indent=2))
+
+
+@app.command()
+def report(
+    runs: list[Path] = typer.Option(
+        ..., "--runs", help="A run folder, or a folder of run folders (repeatable: --runs A --runs B)"
+    ),
+    roundtrip: list[Path] = typer.Option([], "--roundtrip", help="A `cli roundtrip` JSON (repeatable)"),
+    out: Path = typer.Option(..., help="Folder for report.md and its PNGs"),
+    workers: int = typer.Option(1, help="Worker processes of the scores by junction count (0: one per core)"),
+) -> None:
+    """The comparison tables and pictures of finished runs (from `cli eval` and `cli roundtrip`) as
+    OUT/report.md; prints the main tables."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from benchmark.report import main_table, write_report
+
+    with reported_errors():
+        result = write_report(runs, out, roundtrip, workers)
+    console = Console()
+    for block in result.blocks:
+        header, rows = main_table(block)
+        keep = [i for i, name in enumerate(header) if i < 2 or name.endswith("F1") or name.startswith("FPS")]
+        table = Table(title=block.title.replace("`", ""))
+        for i in keep:
+            table.add_column(header[i])
+        for row in rows:  # markdown bold -> rich bold
+            table.add_row(
+                *(f"[bold]{row[i][2:-2]}[/bold]" if row[i].startswith("**") else row[i] for i in keep)
+            )
+        console.print(table)
+    console.print(f"report: {result.path} ({len(result.pictures)} pictures)")
+
+
+@app.command()
+def viz(
+    pred: Path = typer.Option(..., help="Predictions: a graph-table Parquet file (RUN/predictions.parquet)"),
+    gt: Path = typer.Option(..., help="Ground truth: a prepared dataset (or a graph-table file)"),
+    frame: str = typer.Option(None, help="Frame id; default: the predicted frame of the lowest TOPO F1"),
+    camera: bool = typer.Option(False, help="Add the front camera image with both graphs on the ground"),
+    out: Path = typer.Option(..., help="PNG file to write"),
+) -> None:
+    """One frame: ground truth and prediction side by side in BEV, matched and unmatched vertices coloured."""
+    from benchmark.figures import viz as run_viz
+
+    with reported_errors():
+        result = run_viz(pred, gt, frame, out, camera)
+    directed = result["scores"]["directed"]
+    typer.echo(
+        f"{out}: frame {result['frame_id']}, directed TOPO F1 {directed['topo']['f1']:.3f}, "
+        f"Junction TOPO F1 {directed['junction_topo']['f1']:.3f}"
+    )
 
 
 if __name__ == "__main__":

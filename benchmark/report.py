@@ -1,0 +1,679 @@
+"""`cli report`: the comparison tables and pictures of finished runs, as DIR/report.md and its PNGs.
+
+Reads what `cli eval` (RUN/metrics.json, predictions.parquet, config.json, run.json, log.jsonl) and
+`cli roundtrip` (JSON) wrote, and never recomputes a score, with one exception that says so: the
+scores by junction count, which score each run's predictions.parquet on subsets of its frames with
+the project's own metric. Runs are grouped in blocks, one per prepared dataset and split (read from
+the data's manifest.json): runs scored on different frames never share a table.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from benchmark import figures
+from benchmark.metrics import MetricParams, densify
+from benchmark.score import graphs_from_table, read_graph_table, score_pairs
+from pipeline.geometry import Range
+from pipeline.io import write_atomic
+from pipeline.lane_graph import LaneGraph
+
+MODES = ("directed", "undirected")
+METRICS = ("junction_topo", "topo")  # the paper's Tab. 1 order: Junction TOPO first
+STATS = ("precision", "recall", "f1")
+SHORT = {"directed": "dir", "undirected": "undir", "junction_topo": "J-TOPO", "topo": "TOPO",
+         "precision": "P", "recall": "R", "f1": "F1"}  # fmt: skip
+F1_COLUMNS = [(mode, metric) for mode in MODES for metric in ("topo", "junction_topo")]
+METHOD_NAMES = {"lanegap": "LaneGAP", "maptr": "MapTR", "stsu": "STSU", "hdmapnet": "HDMapNet"}
+VIA_NAMES = {"path": "Path2Graph (paths)", "piece": "Piece2Graph (pieces)", "pixel": "Pixel2Graph (rasters)"}
+RUN_FILES = ("metrics.json", "config.json", "run.json", "checkpoint.pt", "log.jsonl", "predictions.parquet")
+REQUIRED = ("frames", "directed", "undirected", "metric_params", "params", "fps_net", "fps", "split", "data")
+# config fields that do not change what a run learns: never the varied field of an ablation
+IGNORED_FIELDS = {
+    "data.num_workers",
+    "data.cache_samples",
+    "data.sensor_root",
+    "train.threads",
+    "train.log_every",
+}
+FIELD_NAMES = {"decoder.path_points": "points per path", "decoder.bezier_points": "Bezier control points",
+               "decoder.aux_seg": "auxiliary segmentation", "encoder.modality": "modality",
+               "train.epochs": "epochs"}  # fmt: skip
+JUNCTION_BUCKETS = ((0, 0, "0"), (1, 2, "1-2"), (3, 5, "3-5"), (6, math.inf, "6+"))
+GRID_JUNCTION_FRAMES = 4  # grid rows: the frames with the most junctions, then one plain road
+JUNCTION_DEFINITION = (
+    "A frame's junction count is the number of vertices of its ground-truth lane graph with in-degree "
+    ">= 2 or out-degree >= 2 once points at identical coordinates are one vertex: the forks and merges "
+    "that directed Junction TOPO anchors at (docs/METRICS.md, step 1 and Junction TOPO)."
+)
+
+FLOOR_NOTE = (
+    "Rows `constant prior` and `<run>: other log's sensors` are the sensor-blind floor (`cli eval`): what "
+    "a model that ignores its frame's sensors scores on the same frames."
+)
+GRID_NOTE = "Each piece in its own colour, arrows in the driving direction, the ego car in grey."
+
+
+@dataclass
+class Run:
+    path: Path
+    name: str
+    metrics: dict | None  # metrics.json; None when the run has no usable one (see reasons)
+    config: dict | None  # config.json (else the copy in metrics.json)
+    data: Path | None  # the prepared dataset it was scored on (or trained on), when found
+    dataset: str  # the data manifest's dataset name; "unknown" when the data is not found
+    split: str | None
+    world_size: int | None
+    log: list[dict] = field(default_factory=list)
+    reasons: list[str] = field(default_factory=list)  # why it has no scores
+
+    @property
+    def scored(self) -> bool:
+        return self.metrics is not None
+
+    @property
+    def method(self) -> str:
+        model = (self.metrics or {}).get("model") or (self.config or {}).get("model") or "?"
+        return METHOD_NAMES.get(model, model)
+
+    @property
+    def modality(self) -> str:
+        return (self.config or {}).get("encoder", {}).get("modality", "-")
+
+    def score(self, mode: str, metric: str, stat: str = "f1") -> float:
+        return float(self.metrics[mode][metric][stat])
+
+    def floor_f1(self, mode: str, metric: str) -> float | None:
+        f1 = ((self.metrics or {}).get("floor") or {}).get("f1")
+        return None if not f1 else f1[mode][metric]
+
+
+@dataclass
+class Block:
+    """The runs of one prepared dataset and split: one main table."""
+
+    dataset: str
+    data: Path | None
+    split: str | None
+    runs: list[Run]
+
+    @property
+    def scored(self) -> list[Run]:
+        return [run for run in self.runs if run.scored]
+
+    @property
+    def metric_params(self) -> dict | None:
+        return self.scored[0].metrics["metric_params"] if self.scored else None
+
+    @property
+    def title(self) -> str:
+        frames = f", {self.scored[0].metrics['frames']} frames" if self.scored else ""
+        return f"{self.dataset}: `{self.data or 'data not found'}`, {self.split or '?'} split{frames}"
+
+
+def read_json(path: Path) -> dict:
+    try:
+        return json.loads(Path(path).read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from error
+
+
+def find_runs(paths: list[Path]) -> list[Path]:
+    """Run folders: each path is a run folder (it holds config.json, metrics.json, ...) or a folder whose
+    every sub-folder is taken as a run (an empty one then appears as a run without scores)."""
+    found: list[Path] = []
+    for path in map(Path, paths):
+        if not path.is_dir():
+            raise FileNotFoundError(f"{path}: no such run folder")
+        if any((path / name).exists() for name in RUN_FILES):
+            found.append(path)
+            continue
+        inner = sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
+        if not inner:
+            raise ValueError(
+                f"{path}: neither a run folder (no {', '.join(RUN_FILES[:3])}) nor a folder of runs"
+            )
+        found += inner
+    unique = {p.resolve(): p for p in found}
+    return list(unique.values())
+
+
+def find_data(candidates: list) -> tuple[Path | None, str]:
+    """(data folder, manifest dataset name) of the first candidate folder holding a manifest.json."""
+    for candidate in candidates:
+        if candidate and (Path(candidate) / "manifest.json").is_file():
+            manifest = read_json(Path(candidate) / "manifest.json")
+            return Path(candidate).resolve(), str(manifest.get("dataset", "unknown"))
+    return None, "unknown"
+
+
+def load_run(path: Path, name: str) -> Run:
+    """A run folder as found: a missing or unusable file becomes a reason, never an exception."""
+    reasons, metrics, config, info = [], None, None, {}
+    for file_name in ("config.json", "run.json", "metrics.json"):
+        file = path / file_name
+        if not file.is_file():
+            continue
+        try:
+            value = read_json(file)
+        except ValueError as error:
+            reasons.append(str(error))
+            continue
+        config, info, metrics = (
+            (value, info, metrics) if file_name == "config.json"
+            else (config, value, metrics) if file_name == "run.json"
+            else (config, info, value)
+        )  # fmt: skip
+    if not (path / "checkpoint.pt").is_file():
+        reasons.append("no checkpoint.pt (training did not finish)")
+    if metrics is None and not (path / "metrics.json").is_file():
+        reasons.append(f"no metrics.json (not evaluated: `cli eval --run {path}`)")
+    elif metrics is not None:
+        missing = [key for key in REQUIRED if key not in metrics]
+        if missing:
+            reasons.append(f"{path / 'metrics.json'} lacks {', '.join(missing)} (re-run `cli eval`)")
+            metrics = None
+    config = config or (metrics or {}).get("config")
+    data, dataset = find_data([(metrics or {}).get("data"), info.get("data")])
+    split = (metrics or {}).get("split") or (config or {}).get("train", {}).get("val_split")
+    log = []
+    if (path / "log.jsonl").is_file():
+        log = [json.loads(line) for line in (path / "log.jsonl").read_text().splitlines() if line.strip()]
+    if metrics is None and not reasons:
+        reasons.append("no metrics.json")
+    return Run(path, name, metrics, config, data, dataset, split, info.get("world_size"), log, reasons)
+
+
+def load_runs(paths: list[Path]) -> list[Run]:
+    folders = find_runs(paths)
+    names = [p.name for p in folders]
+    return [load_run(p, p.name if names.count(p.name) == 1 else f"{p.parent.name}/{p.name}") for p in folders]
+
+
+def group_blocks(runs: list[Run]) -> list[Block]:
+    """One block per (dataset, data folder, split); each block's runs must share the metric parameters."""
+    blocks: dict[tuple, Block] = {}
+    for run in runs:
+        key = (run.dataset, str(run.data or ""), run.split or "")
+        blocks.setdefault(key, Block(run.dataset, run.data, run.split, [])).runs.append(run)
+    for block in blocks.values():
+        check_metric_params(block.scored)
+    return [blocks[key] for key in sorted(blocks)]
+
+
+def check_metric_params(runs: list[Run]) -> None:
+    """Refuse to put runs scored with different metric thresholds in one table."""
+    for run in runs[1:]:
+        first, this = runs[0].metrics["metric_params"], run.metrics["metric_params"]
+        differ = [k for k in sorted(set(first) | set(this)) if first.get(k) != this.get(k)]
+        if differ:
+            what = "; ".join(f"{k} {this.get(k)} vs {first.get(k)}" for k in differ)
+            raise ValueError(
+                f"{run.path / 'metrics.json'}: scored with other metric parameters than "
+                f"{runs[0].path / 'metrics.json'} ({what}); they cannot share a table: re-run `cli eval` "
+                "on one of them or report them apart"
+            )
+
+
+# ---------------------------------------------------------------------------------------------------
+# Tables
+
+
+def percent(value: float | None) -> str:
+    return "–" if value is None else f"{100 * value:.1f}"
+
+
+def markdown_table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
+    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
+
+
+def bold_best(cells: list[list[str]], values: list[list[float]]) -> None:
+    """Bold, in each column, every cell holding the column's maximum: only among two rows or more, and
+    only when a row is below it (a column of ties has no best)."""
+    if len(values) < 2:
+        return
+    for col in range(len(values[0])):
+        best = max(row[col] for row in values)
+        if best == min(row[col] for row in values):
+            continue
+        for row, row_values in zip(cells, values):
+            if row_values[col] == best:
+                row[col] = f"**{row[col]}**"
+
+
+def score_cells(result: dict) -> list[str]:
+    return [percent(result[mode][metric][stat]) for mode in MODES for metric in METRICS for stat in STATS]
+
+
+SCORE_HEADER = [
+    f"{SHORT[mode]} {SHORT[metric]} {SHORT[stat]}" for mode in MODES for metric in METRICS for stat in STATS
+]
+
+
+def main_table(block: Block) -> tuple[list[str], list[list[str]]]:
+    """Tab. 1's layout: a row per run, then the sensor-blind floor rows; the best F1 of each column
+    (among the runs) in bold. Scores in %."""
+    header = [
+        "run",
+        "method",
+        "modeling",
+        "modality",
+        *SCORE_HEADER,
+        "Params (M)",
+        "GFLOPs",
+        "FPS_net",
+        "FPS",
+    ]
+    f1_at = [i for i, name in enumerate(SCORE_HEADER) if name.endswith("F1")]
+    rows, values = [], []
+    for run in block.scored:
+        m = run.metrics
+        cells = score_cells(m)
+        values.append([float(m[mode][metric]["f1"]) for mode in MODES for metric in METRICS])
+        gflops = f"{m['gflops']:.2f}" if m.get("gflops") is not None else "–"
+        extra = [f"{m['params'] / 1e6:.2f}", gflops, f"{m['fps_net']:.1f}", f"{m['fps']:.1f}"]
+        rows.append([run.name, run.method, m.get("modeling", "–"), run.modality, *cells, *extra])
+    f1_cells = [[row[4 + i] for i in f1_at] for row in rows]
+    bold_best(f1_cells, values)
+    for row, cells in zip(rows, f1_cells):
+        for i, cell in zip(f1_at, cells):
+            row[4 + i] = cell
+    priors = {}
+    for run in block.scored:
+        floor = run.metrics.get("floor") or {}
+        prior = floor.get("constant_prior")
+        if prior:
+            label = f"GT of {prior['frame_id']} ({prior.get('split', 'train')})"
+            priors[prior["frame_id"]] = ["constant prior", label, "–", "none", *score_cells(prior)]
+        if floor.get("other_log_sensors"):
+            cells = score_cells(floor["other_log_sensors"])
+            rows.append([f"{run.name}: other log's sensors", run.method, "–", run.modality, *cells])
+    rows += list(priors.values())
+    for row in rows:
+        row += ["–"] * (len(header) - len(row))
+    for run in block.runs:
+        if not run.scored:
+            rows.append([run.name, "not scored: " + "; ".join(run.reasons)] + ["–"] * (len(header) - 2))
+    return header, rows
+
+
+def settings_table(block: Block) -> tuple[list[str], list[list[str]]]:
+    header = ["run", "device", "preset", "epochs trained / set", "batch size (total)", "processes", "split"]
+    rows = []
+    for run in block.runs:
+        config = run.config or {}
+        train = config.get("train", {})
+        trained = max((entry.get("epoch", 0) for entry in run.log), default=None)
+        rows.append([
+            run.name, str((run.metrics or {}).get("device", "–")), str(config.get("preset", "–")),
+            f"{trained if trained is not None else '–'} / {train.get('epochs', '–')}",
+            str(train.get("batch_size", "–")), str(run.world_size or "–"), str(run.split or "–"),
+        ])  # fmt: skip
+    return header, rows
+
+
+def params_line(params: dict) -> str:
+    return ", ".join(f"{key} {value}" for key, value in params.items())
+
+
+def floor_notes(block: Block) -> list[str]:
+    notes = []
+    for run in block.scored:
+        floor = run.metrics.get("floor")
+        if floor is None:
+            notes.append(f"{run.name}: no sensor-blind floor recorded (evaluated with `--no-floor`).")
+            continue
+        for name, reason in (floor.get("absent") or {}).items():
+            notes.append(f"{run.name}: no `{name}` floor row: {reason}.")
+    return notes
+
+
+def miou_table(block: Block) -> tuple[list[str], list[list[str]]]:
+    rows, values = [], []
+    for run in block.scored:
+        if run.metrics.get("miou") is not None:
+            rows.append([run.name, run.method, run.modality, percent(run.metrics["miou"])])
+            values.append([float(run.metrics["miou"])])
+    cells = [[row[3]] for row in rows]
+    bold_best(cells, values)
+    for row, (cell,) in zip(rows, cells):
+        row[3] = cell
+    return ["run", "method", "modality", "mIoU"], rows
+
+
+def ablations(block: Block) -> list[tuple[str, list[Run]]]:
+    """(field, runs sorted by its value) for every set of runs (of one block, so one dataset and split)
+    whose saved configs differ in exactly that one field; IGNORED_FIELDS never count."""
+
+    def flat(config: dict) -> dict:
+        out = {}
+        for key, value in config.items():
+            if isinstance(value, dict):
+                out.update({f"{key}.{k}": v for k, v in value.items()})
+            else:
+                out[key] = value
+        return {k: v for k, v in out.items() if k not in IGNORED_FIELDS}
+
+    runs = [run for run in block.scored if run.config]
+    configs = {id(run): flat(run.config) for run in runs}
+    found = []
+    for name in sorted(set().union(*configs.values()) if configs else ()):
+        groups: dict[str, list[Run]] = {}
+        for run in runs:
+            rest = {k: v for k, v in configs[id(run)].items() if k != name}
+            groups.setdefault(json.dumps(rest, sort_keys=True), []).append(run)
+        for members in groups.values():
+            if len({json.dumps(configs[id(run)].get(name)) for run in members}) >= 2:
+                found.append((name, sorted(members, key=lambda run: sort_key(configs[id(run)].get(name)))))
+    return found
+
+
+def sort_key(value) -> tuple:
+    """Numbers (and booleans) in order, before anything else in text order."""
+    return (0, value, "") if isinstance(value, int | float) else (1, 0, str(value))
+
+
+def ablation_table(name: str, runs: list[Run]) -> tuple[list[str], list[list[str]]]:
+    header = [FIELD_NAMES.get(name, name), "run"] + [f"{SHORT[m]} {SHORT[k]} F1" for m, k in F1_COLUMNS]
+    header += ["mIoU", "FPS"]
+    rows, values = [], []
+    for run in runs:
+        value = flat_value(run.config, name)
+        values.append([run.score(mode, metric) for mode, metric in F1_COLUMNS])
+        rows.append([str(value), run.name] + [percent(v) for v in values[-1]])
+    cells = [row[2:] for row in rows]
+    bold_best(cells, values)
+    for row, run, cell in zip(rows, runs, cells):
+        row[2:] = cell + [percent(run.metrics.get("miou")), f"{run.metrics['fps']:.1f}"]
+    return header, rows
+
+
+def flat_value(config: dict, name: str):
+    section, _, key = name.partition(".")
+    return config[section][key] if key else config[section]
+
+
+def junction_count(graph: LaneGraph, step: float) -> int:
+    """JUNCTION_DEFINITION: the directed junctions of the metric's own densified graph."""
+    return int(np.count_nonzero(densify(graph, step)["directed"].junction))
+
+
+def bucket_of(count: int) -> str:
+    return next(label for low, high, label in JUNCTION_BUCKETS if low <= count <= high)
+
+
+def block_graphs(block: Block) -> tuple[dict[str, LaneGraph], dict[str, dict[str, LaneGraph]], list[str]]:
+    """(ground truth of the block's frames, {run name: predictions}, notes) of the scored runs."""
+    notes, predictions = [], {}
+    for run in block.scored:
+        file = run.path / "predictions.parquet"
+        if file.is_file():
+            predictions[run.name] = graphs_from_table(read_graph_table(file), file)
+        else:
+            notes.append(
+                f"{run.name}: no predictions.parquet, left out of the per-frame tables and pictures."
+            )
+    frames = sorted(set().union(*predictions.values())) if predictions else []
+    gt = graphs_from_table(read_graph_table(block.data), block.data) if frames else {}
+    unknown = [f for f in frames if f not in gt]
+    if unknown:
+        raise ValueError(f"{block.data}: frame {unknown[0]} of the predictions is not in the ground truth")
+    return {f: gt[f] for f in frames}, predictions, notes
+
+
+def junction_table(
+    gt: dict[str, LaneGraph], predictions: dict[str, dict[str, LaneGraph]], counts: dict[str, int],
+    params: MetricParams, workers: int = 1,
+) -> tuple[list[str], list[list[str]]]:  # fmt: skip
+    """Directed TOPO and Junction TOPO F1 of every run on the frames of each junction-count bucket;
+    scored here with the metric (a frame a run did not predict is an empty prediction, as `cli score`)."""
+    header = ["GT junctions", "frames"]
+    for name in predictions:
+        header += [f"{name} dir TOPO F1", f"{name} dir J-TOPO F1"]
+    rows = []
+    for _, _, label in JUNCTION_BUCKETS:
+        frames = [f for f in sorted(gt) if bucket_of(counts[f]) == label]
+        row = [label, str(len(frames))]
+        for graphs in predictions.values():
+            if not frames:
+                row += ["–", "–"]
+                continue
+            pairs = [(graphs.get(f, LaneGraph.empty()), gt[f]) for f in frames]
+            result = score_pairs(pairs, params, workers)["directed"]
+            row += [
+                percent(result["topo"]["f1"]),
+                "–" if label == "0" else percent(result["junction_topo"]["f1"]),
+            ]
+        rows.append(row)
+    return header, rows
+
+
+def grid_frames(counts: dict[str, int], gt: dict[str, LaneGraph]) -> list[str]:
+    """The frames with the most junctions, then one plain road: the frame with the fewest junctions
+    and the most ground-truth vertices (ties by frame_id)."""
+    by_junctions = sorted(counts, key=lambda f: (-counts[f], f))
+    chosen = by_junctions[:GRID_JUNCTION_FRAMES]
+    rest = [f for f in counts if f not in chosen]
+    if rest:
+        chosen.append(min(rest, key=lambda f: (counts[f], -len(gt[f].x), f)))
+    return chosen
+
+
+def short_id(frame_id: str) -> str:
+    parts = frame_id.split("/")
+    return f"{parts[-2][:8]}/{parts[-1]}" if len(parts) >= 2 else frame_id
+
+
+# ---------------------------------------------------------------------------------------------------
+# Round trips (Tab. 10)
+
+
+def load_roundtrips(paths: list[Path]) -> list[tuple[Path, dict]]:
+    out = []
+    for path in map(Path, paths):
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no such roundtrip JSON")
+        result = read_json(path)
+        missing = [key for key in ("via", "frames", "directed", "undirected", "params") if key not in result]
+        if missing:
+            raise ValueError(f"{path}: not a `cli roundtrip` result (no {', '.join(missing)})")
+        out.append((path, result))
+    return out
+
+
+def roundtrip_tables(
+    roundtrips: list[tuple[Path, dict]],
+) -> list[tuple[str, list[str], list[list[str]], dict]]:
+    """(title, header, rows, metric params) per data folder."""
+    groups: dict[str, list[tuple[Path, dict]]] = {}
+    for path, result in roundtrips:
+        groups.setdefault(str(result.get("data", "?")), []).append((path, result))
+    tables = []
+    for data, members in sorted(groups.items()):
+        params = members[0][1]["params"]
+        for path, result in members[1:]:
+            if result["params"] != params:
+                differ = [k for k in sorted(params) if params.get(k) != result["params"].get(k)]
+                raise ValueError(
+                    f"{path}: scored with other metric parameters ({', '.join(differ)}) than "
+                    f"{members[0][0]}; they cannot share a table"
+                )
+        _, dataset = find_data([data])
+        rows = []
+        for path, result in sorted(
+            members, key=lambda m: list(VIA_NAMES).index(m[1]["via"]) if m[1]["via"] in VIA_NAMES else 9
+        ):
+            name = VIA_NAMES.get(result["via"], result["via"])
+            rows.append(
+                [name, path.name, str(result["frames"]), *score_cells(result), percent(result.get("miou"))]
+            )
+        header = ["representation", "file", "frames", *SCORE_HEADER, "mIoU"]
+        tables.append((f"{dataset}: `{data}`", header, rows, params))
+    return tables
+
+
+# ---------------------------------------------------------------------------------------------------
+# Summary and the report
+
+
+def summary(blocks: list[Block]) -> str:
+    """One paragraph in words, generated from the numbers."""
+    sentences = []
+    for block in blocks:
+        scored, where = block.scored, f"On {block.dataset} ({block.split or '?'} split)"
+        unscored = [run.name for run in block.runs if not run.scored]
+        if not scored:
+            sentences.append(
+                f"{where} no run has scores yet ({', '.join(unscored)}: see the reasons in its table)."
+            )
+            continue
+        if len(scored) == 1:
+            run = scored[0]
+            sentences.append(
+                f"{where} the one scored run, {run.name} ({run.method}, {run.modality}), reaches directed "
+                f"TOPO F1 {percent(run.score('directed', 'topo'))} % and directed Junction TOPO F1 "
+                f"{percent(run.score('directed', 'junction_topo'))} %."
+            )
+        else:
+            leads: dict[str, list[str]] = {}
+            for mode, metric in F1_COLUMNS:
+                ranked = sorted(scored, key=lambda r: -r.score(mode, metric))
+                first, second = ranked[0], ranked[1]
+                a, b = first.score(mode, metric), second.score(mode, metric)
+                name = f"{mode} {'Junction TOPO' if metric == 'junction_topo' else 'TOPO'} F1"
+                if a == b:
+                    leads.setdefault(f"{first.name} and {second.name} tie", []).append(
+                        f"{name} ({percent(a)} %)"
+                    )
+                else:
+                    lead = f"+{100 * (a - b):.1f} points"
+                    text = f"{name} ({percent(a)} % vs {percent(b)} % for {second.name}, {lead})"
+                    leads.setdefault(f"{first.name} leads", []).append(text)
+            parts = [f"{who} on {', '.join(items)}" for who, items in leads.items()]
+            sentences.append(f"{where} " + "; ".join(parts) + ".")
+        for run in scored:
+            floor = run.floor_f1("directed", "topo")
+            if floor is not None:
+                margin = run.score("directed", "topo") - floor
+                side = "above" if margin > 0 else "below" if margin < 0 else "level with"
+                sentences.append(
+                    f"{run.name} is {abs(100 * margin):.1f} points {side} its sensor-blind floor on directed "
+                    f"TOPO F1 ({percent(floor)} %)."
+                )
+        if unscored:
+            sentences.append(f"{len(unscored)} run(s) have no scores: {', '.join(unscored)}.")
+    return " ".join(sentences)
+
+
+@dataclass
+class Report:
+    path: Path  # report.md
+    blocks: list[Block]
+    pictures: list[Path]
+    grids: dict[str, tuple[int, int]]  # picture file name -> (rows, columns) of its panel grid
+
+
+def write_report(runs: list[Path], out: Path, roundtrips: list[Path] = (), workers: int = 1) -> Report:
+    """Write out/report.md and the PNGs it links; returns what was written."""
+    out = Path(out)
+    blocks = group_blocks(load_runs(runs))
+    trips = load_roundtrips(list(roundtrips))
+    trip_tables = roundtrip_tables(trips)  # checked before anything is written
+    out.mkdir(parents=True, exist_ok=True)
+    pictures, grids = [], {}
+    md = ["# Lane-graph report", "", summary(blocks), ""]
+    md += [
+        "Scores are in % (precision P, recall R, F1) of the TOPO and Junction TOPO metrics "
+        "(docs/METRICS.md), directed (dir) and undirected (undir), as `cli eval` wrote them in each run's "
+        "metrics.json. Params in millions, GFLOPs per frame (torch's FLOP counter), FPS_net: the network "
+        "alone, FPS: with post-processing. Bold: the best F1 of a column among the runs of a block "
+        "(none when all tie).",
+        "",
+    ]
+    for index, block in enumerate(blocks, 1):
+        slug = f"{index}_{block.dataset}"
+        md += [f"## {block.title}", "", "### Main table (paper Tab. 1)", ""]
+        md += [markdown_table(*main_table(block)), ""]
+        md += [FLOOR_NOTE, ""]
+        md += [f"- {note}" for note in floor_notes(block)] + [""]
+        md += [markdown_table(*settings_table(block)), ""]
+        params_text = params_line(block.metric_params) if block.metric_params else "–"
+        md += [
+            f"Data: `{block.data}`, split {block.split}. Metric parameters (every run of it): {params_text}.",
+            "",
+        ]
+        if not block.scored:
+            continue
+        md += ["### mIoU (paper Tab. 9)", "", markdown_table(*miou_table(block)), ""]
+        for name, members in ablations(block):
+            md += [f"### Ablation: {FIELD_NAMES.get(name, name)} (`{name}`)", ""]
+            md += ["Runs whose saved configs differ in this field alone.", ""]
+            md += [markdown_table(*ablation_table(name, members)), ""]
+        if block.data is None:
+            md += ["The data folder was not found: no scores by junction count and no frame grid.", ""]
+            continue
+        gt, predictions, notes = block_graphs(block)
+        md += [f"- {note}" for note in notes]
+        params = MetricParams(**block.metric_params)
+        counts = {f: junction_count(g, params.step) for f, g in gt.items()}
+        if predictions:
+            md += ["### Scores by junction count", ""]
+            md += ["Computed here, not read from metrics.json: each run's predictions.parquet scored with "
+                   "the project's metric (parameters above) on the frames of each bucket. "
+                   + JUNCTION_DEFINITION, ""]  # fmt: skip
+            md += [markdown_table(*junction_table(gt, predictions, counts, params, workers)), ""]
+            frames = grid_frames(counts, gt)
+            columns = [("ground truth", gt)] + list(predictions.items())
+            labels = [(f, f"{short_id(f)} ({counts[f]} junctions)") for f in frames]
+            figure = figures.frame_grid(labels, columns, Range.parse(params.bev_range))
+            grid = f"grid_{slug}.png"
+            pictures.append(figures.save_png(figure, out / grid))
+            grids[grid] = (len(frames), len(columns))
+            md += ["### Frames", "", f"![ground truth and predictions]({grid})", ""]
+            rows_text = ", ".join(f"`{f}`" for f in frames)
+            md += [f"Rows: {rows_text}. Columns: ground truth, {', '.join(predictions)}. " + GRID_NOTE, ""]
+        names = [run.name for run in block.scored]
+        values = np.array([[100 * run.score(m, k) for m, k in F1_COLUMNS] for run in block.scored])
+        floors = np.array([[np.nan if run.floor_f1(m, k) is None else 100 * run.floor_f1(m, k)
+                            for m, k in F1_COLUMNS] for run in block.scored])  # fmt: skip
+        labels = [f"{SHORT[m]} {SHORT[k]} F1" for m, k in F1_COLUMNS]
+        bars = f"f1_{slug}.png"
+        pictures.append(figures.save_png(figures.f1_bars(names, labels, values, floors), out / bars))
+        md += ["### F1 by run", "", f"![F1 by run]({bars})", ""]
+    if trip_tables:
+        md += ["## Post-processing accuracy (paper Tab. 10)", ""]
+        md += [
+            "The ground truth through each representation and back (`cli roundtrip`), scored against itself.",
+            "",
+        ]
+        for title, header, rows, params in trip_tables:
+            md += [
+                f"### {title}",
+                "",
+                markdown_table(header, rows),
+                "",
+                f"Metric parameters: {params_line(params)}.",
+                "",
+            ]
+    curves = {}
+    for block in blocks:
+        for run in block.runs:
+            points = [(e["step"], e["loss"]) for e in run.log if "step" in e and e.get("loss") is not None]
+            if points:
+                curves[run.name] = (np.array([p[0] for p in points]), np.array([p[1] for p in points]))
+    md += ["## Training loss", ""]
+    if curves:
+        pictures.append(figures.save_png(figures.loss_curves(curves), out / "loss.png"))
+        md += ["![training loss](loss.png)", "", "From each run's log.jsonl (one point per logged step).", ""]
+    else:
+        md += ["No run has a log.jsonl with losses.", ""]
+    text = "\n".join(md).rstrip() + "\n"
+    path = out / "report.md"
+    write_atomic(path, lambda tmp: tmp.write_text(text))
+    return Report(path, blocks, pictures, grids)

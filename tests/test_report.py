@@ -1,0 +1,335 @@
+"""`cli report` and `cli viz` on small finished runs, read back.
+
+The runs, made once for the module: `lanegap_lidar`, LaneGAP tiny (LiDAR, with a one-layer decoder of
+8 queries: seconds on two loaded cores) trained for one epoch (3 steps) on a small synthetic AV2 split
+and scored by `cli eval` (its floor included); `path_oracle`, the same run folder whose predictions are
+the validation ground truth with edges dropped and shifted 0.2 m, scored with the project's metric and
+saved as trained for 2 epochs (so the two differ in `train.epochs` alone, and have different, non-zero
+scores); `lanegap_nusc`, the first checkpoint scored by `cli eval` on the nuScenes copy of the data;
+`crashed`, a run whose training wrote its config and stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from benchmark.report import JUNCTION_BUCKETS, junction_count, write_report
+from benchmark.score import graphs_from_table, read_graph_table, score_pairs
+from cli import app
+from pipeline import io
+from pipeline.lane_graph import LaneGraph
+
+SCORE_KEYS = [(mode, metric, stat) for mode in ("directed", "undirected")
+              for metric in ("junction_topo", "topo") for stat in ("precision", "recall", "f1")]  # fmt: skip
+
+
+def graph_rows(graphs: dict[str, LaneGraph]) -> pa.Table:
+    rows = [
+        {"frame_id": f, "x": g.x.tolist(), "y": g.y.tolist(), "src": g.src.tolist(), "dst": g.dst.tolist()}
+        for f, g in sorted(graphs.items())
+    ]
+    return pa.Table.from_pylist(rows, io.SCHEMAS["graphs"])
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory) -> dict:
+    from baselines.config import resolve_config
+    from baselines.evaluate import evaluate
+    from baselines.train import train
+    from benchmark.metrics import MetricParams
+    from benchmark.roundtrip import roundtrip
+    from pipeline.prepare import prepare
+    from pipeline.synth import synth
+    from pipeline.targets import TargetOptions
+
+    root = tmp_path_factory.mktemp("report")
+    synth(root / "raw", logs=4, frames_per_log=4, seed=0, frame_period=1.0, worlds=1)
+    av2, nusc = root / "av2", root / "nusc"
+    prepare("av2", root / "raw" / "av2" / "sensor", av2, TargetOptions())
+    prepare("nuscenes", root / "raw" / "nuscenes", nusc, TargetOptions(), version="v1.0-mini")
+    runs = root / "runs"
+    model = runs / "lanegap_lidar"
+    small = ["train.log_every=1", "decoder.layers=1", "decoder.num_paths=8", "decoder.ffn_channels=64"]
+    train(resolve_config("tiny", "lidar", epochs=1, overrides=small), av2, model)
+    evaluate(model, av2, "val", "cpu")
+
+    oracle = runs / "path_oracle"
+    shutil.copytree(model, oracle)
+    gt = graphs_from_table(read_graph_table(av2), av2)
+    frames = sorted(graphs_from_table(read_graph_table(model / "predictions.parquet"), model).keys())
+    predicted = {}
+    for i, f in enumerate(frames):
+        g, keep = gt[f], np.arange(len(gt[f].src)) % (2 + i % 3) != 0
+        predicted[f] = LaneGraph(g.x + np.float32(0.2), g.y, g.src[keep], g.dst[keep])
+    pq.write_table(graph_rows(predicted), oracle / "predictions.parquet")
+    metrics = json.loads((oracle / "metrics.json").read_text())
+    scores = score_pairs([(predicted[f], gt[f]) for f in frames], MetricParams(**metrics["metric_params"]))
+    metrics.update({k: scores[k] for k in ("directed", "undirected", "miou")}, fps=2 * metrics["fps"])
+    metrics["config"]["train"]["epochs"] = 2
+    (oracle / "metrics.json").write_text(json.dumps(metrics))
+    (oracle / "config.json").write_text(json.dumps(metrics["config"]))
+
+    nusc_run = root / "nusc_runs" / "lanegap_nusc"
+    nusc_run.parent.mkdir()
+    shutil.copytree(model, nusc_run)
+    evaluate(nusc_run, nusc, "mini_val", "cpu", floor=False)
+
+    crashed = runs / "crashed"
+    crashed.mkdir()
+    for name in ("config.json", "run.json"):
+        shutil.copy(model / name, crashed / name)
+    trips = [root / f"roundtrip_{via}.json" for via in ("path", "piece")]
+    for via, path in zip(("path", "piece"), trips):
+        roundtrip(av2, via, path)
+    out = root / "report"
+    report = write_report([runs, nusc_run], out, trips)
+    return {"root": root, "av2": av2, "runs": runs, "out": out, "report": report, "trips": trips,
+            "text": (out / "report.md").read_text()}  # fmt: skip
+
+
+def section(text: str, start: str) -> str:
+    """The text from the heading that starts with `start` to the next heading of its level or above."""
+    lines = text.splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith(start))
+    level = len(start) - len(start.lstrip("#"))
+    end = next((i for i in range(at + 1, len(lines)) if re.match(rf"#{{1,{level}}} ", lines[i])), len(lines))
+    return "\n".join(lines[at:end])
+
+
+def first_table(text: str) -> tuple[list[str], list[list[str]]]:
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    block = []
+    for line in lines[start:]:
+        if not line.startswith("|"):
+            break
+        block.append([cell.strip() for cell in line.strip("|").split("|")])
+    return block[0], block[2:]
+
+
+def number(cell: str) -> float:
+    return float(cell.strip("*"))
+
+
+def run_metrics(made, name: str) -> dict:
+    folder = made["root"] / "nusc_runs" / name if name == "lanegap_nusc" else made["runs"] / name
+    return json.loads((folder / "metrics.json").read_text())
+
+
+def test_every_table_is_there(made):
+    text = made["text"]
+    for heading in ("## av2:", "### Main table", "### mIoU", "### Ablation: epochs (`train.epochs`)",
+                    "### Scores by junction count", "### Frames", "### F1 by run", "## nuscenes:",
+                    "## Post-processing accuracy", "## Training loss"):  # fmt: skip
+        assert any(line.startswith(heading) for line in text.splitlines()), heading
+
+
+def test_main_table_holds_each_runs_metrics_json(made):
+    for block, names in (("## av2:", ["lanegap_lidar", "path_oracle"]), ("## nuscenes:", ["lanegap_nusc"])):
+        header, rows = first_table(section(section(made["text"], block), "### Main table"))
+        by_run = {row[0]: row for row in rows}
+        assert {n for n in by_run if not n.startswith(("constant", "crashed"))} <= set(names)
+        for name in names:
+            metrics, row = run_metrics(made, name), by_run[name]
+            for (mode, metric, stat), cell in zip(SCORE_KEYS, row[4:16]):
+                assert abs(number(cell) - 100 * metrics[mode][metric][stat]) <= 0.05 + 1e-9, (
+                    name,
+                    mode,
+                    metric,
+                )
+            assert header[16:] == ["Params (M)", "GFLOPs", "FPS_net", "FPS"]
+            assert abs(float(row[16]) - metrics["params"] / 1e6) <= 0.005 + 1e-9
+            assert abs(float(row[17]) - metrics["gflops"]) <= 0.005 + 1e-9
+            assert abs(float(row[18]) - metrics["fps_net"]) <= 0.05 + 1e-9
+            assert abs(float(row[19]) - metrics["fps"]) <= 0.05 + 1e-9
+            assert row[1:4] == ["LaneGAP", metrics["modeling"], "lidar"]
+    # runs of the other dataset never share the block
+    assert "lanegap_nusc" not in section(made["text"], "## av2:")
+    assert "path_oracle" not in section(made["text"], "## nuscenes:")
+
+
+def test_floor_rows_and_settings(made):
+    av2 = section(made["text"], "## av2:")
+    _, rows = first_table(section(av2, "### Main table"))
+    prior = run_metrics(made, "lanegap_lidar")["floor"]["constant_prior"]
+    (row,) = [r for r in rows if r[0] == "constant prior"]
+    assert prior["frame_id"] in row[1]
+    for (mode, metric, stat), cell in zip(SCORE_KEYS, row[4:16]):
+        assert abs(number(cell) - 100 * prior[mode][metric][stat]) <= 0.05 + 1e-9
+    _, settings = first_table(av2.split("sensor-blind floor")[-1])
+    assert ["lanegap_lidar", "cpu", "tiny", "1 / 1", "4", "1", "val"] in settings
+    assert "evaluated with `--no-floor`" in section(made["text"], "## nuscenes:")
+
+
+def test_bold_is_the_best_f1_of_each_column(made):
+    header, rows = first_table(section(section(made["text"], "## av2:"), "### Main table"))
+    runs = [r for r in rows if r[0] in ("lanegap_lidar", "path_oracle")]
+    f1_columns = [i for i, name in enumerate(header) if name.endswith("F1")]
+    assert len(f1_columns) == 4
+    for col in f1_columns:
+        values = [number(r[col]) for r in runs]
+        assert max(values) > 0
+        for r, value in zip(runs, values):
+            assert r[col].startswith("**") == (value == max(values)), (header[col], r[0])
+    assert not any("**" in cell for r in rows if r not in runs for cell in r)
+
+
+def test_incomplete_run_appears_with_its_reason(made):
+    _, rows = first_table(section(section(made["text"], "## av2:"), "### Main table"))
+    (row,) = [r for r in rows if r[0] == "crashed"]
+    assert row[1].startswith("not scored:") and "no checkpoint.pt" in row[1] and "no metrics.json" in row[1]
+    assert "1 run(s) have no scores: crashed" in made["text"]
+
+
+def test_summary_names_the_leader_with_its_numbers(made):
+    oracle, model = run_metrics(made, "path_oracle"), run_metrics(made, "lanegap_lidar")
+    a, b = oracle["directed"]["topo"]["f1"], model["directed"]["topo"]["f1"]
+    assert a > b
+    expected = f"path_oracle leads on directed TOPO F1 ({100 * a:.1f} % vs {100 * b:.1f} % for lanegap_lidar"
+    assert expected in made["text"].split("\n\n")[1]
+
+
+def test_miou_ablation_and_roundtrip_tables(made):
+    av2 = section(made["text"], "## av2:")
+    _, rows = first_table(section(av2, "### mIoU"))
+    for row in rows:
+        assert abs(number(row[3]) - 100 * run_metrics(made, row[0])["miou"]) <= 0.05 + 1e-9
+    header, rows = first_table(section(av2, "### Ablation: epochs"))
+    assert [(r[0], r[1]) for r in rows] == [("1", "lanegap_lidar"), ("2", "path_oracle")]
+    assert abs(number(rows[1][2]) - 100 * run_metrics(made, "path_oracle")["directed"]["topo"]["f1"]) <= 0.05
+    _, rows = first_table(section(made["text"], "## Post-processing accuracy"))
+    for row, path in zip(rows, made["trips"]):
+        result = json.loads(path.read_text())
+        assert row[1] == path.name and int(row[2]) == result["frames"]
+        for (mode, metric, stat), cell in zip(SCORE_KEYS, row[3:15]):
+            assert abs(number(cell) - 100 * result[mode][metric][stat]) <= 0.05 + 1e-9
+
+
+def junctions_by_degree(graph: LaneGraph) -> int:
+    """A plain reading of the report's definition: merge identical points, drop self-loops and repeated
+    edges, count the vertices with in-degree >= 2 or out-degree >= 2."""
+    xy = np.stack([graph.x, graph.y], axis=1).astype(np.float64)
+    _, vertex = np.unique(xy, axis=0, return_inverse=True)
+    edges = {(vertex[s], vertex[d]) for s, d in zip(graph.src, graph.dst) if vertex[s] != vertex[d]}
+    out_degree, in_degree = {}, {}
+    for s, d in edges:
+        out_degree[s] = out_degree.get(s, 0) + 1
+        in_degree[d] = in_degree.get(d, 0) + 1
+    return sum(1 for v in set(vertex) if in_degree.get(v, 0) >= 2 or out_degree.get(v, 0) >= 2)
+
+
+def test_junction_table_agrees_with_cli_score(made, tmp_path):
+    av2 = made["av2"]
+    gt = graphs_from_table(read_graph_table(av2), av2)
+    header, rows = first_table(section(section(made["text"], "## av2:"), "### Scores by junction count"))
+    assert header[:2] == ["GT junctions", "frames"]
+    oracle_file = made["runs"] / "path_oracle" / "predictions.parquet"
+    predicted = graphs_from_table(read_graph_table(oracle_file), oracle_file)
+    counts = {f: junctions_by_degree(gt[f]) for f in predicted}
+    assert counts == {f: junction_count(gt[f], 0.15) for f in predicted}
+    scored = 0
+    for (low, high, label), row in zip(JUNCTION_BUCKETS, rows):
+        frames = [f for f in predicted if low <= counts[f] <= high]
+        assert row[:2] == [label, str(len(frames))]
+        if not frames:
+            continue
+        pq.write_table(graph_rows({f: gt[f] for f in frames}), tmp_path / "gt.parquet")
+        pq.write_table(graph_rows({f: predicted[f] for f in frames}), tmp_path / "pred.parquet")
+        args = ["score", "--pred", str(tmp_path / "pred.parquet"), "--gt", str(tmp_path / "gt.parquet")]
+        result = CliRunner().invoke(app, args + ["--out", str(tmp_path / "score.json")])
+        assert result.exit_code == 0, result.output
+        directed = json.loads((tmp_path / "score.json").read_text())["directed"]
+        at = header.index("path_oracle dir TOPO F1")
+        assert abs(number(row[at]) - 100 * directed["topo"]["f1"]) <= 0.05 + 1e-9
+        if label != "0":
+            assert abs(number(row[at + 1]) - 100 * directed["junction_topo"]["f1"]) <= 0.05 + 1e-9
+        scored += 1
+    assert scored >= 1
+
+
+def panel_counts(path: Path) -> tuple[int, int]:
+    """(rows, columns) of BEV panels in a grid PNG: runs of pixel rows / columns that hold the panels'
+    background colour."""
+    pixels = np.asarray(Image.open(path).convert("RGB")).astype(int)
+    background = np.all(np.abs(pixels - 247) <= 1, axis=2)
+
+    def runs(mask: np.ndarray) -> int:
+        return int(np.count_nonzero(np.diff(np.concatenate([[0], mask.astype(int)])) == 1))
+
+    return runs(background.sum(axis=1) > 20), runs(background.sum(axis=0) > 20)
+
+
+def test_pictures_exist_open_and_are_not_blank(made):
+    out, report = made["out"], made["report"]
+    links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", made["text"])
+    assert sorted(links) == sorted(p.name for p in report.pictures)
+    assert {"loss.png", "grid_1_av2.png", "f1_1_av2.png"} <= set(links)
+    for link in links:
+        image = np.asarray(Image.open(out / link).convert("L"), np.float64)
+        assert image.shape[0] > 100 and image.shape[1] > 100
+        assert image.std() > 10, link
+    frames = len(
+        graphs_from_table(read_graph_table(made["runs"] / "lanegap_lidar" / "predictions.parquet"), out)
+    )
+    assert report.grids["grid_1_av2.png"] == (min(frames, 5), 3)  # GT, lanegap_lidar, path_oracle
+    assert panel_counts(out / "grid_1_av2.png") == report.grids["grid_1_av2.png"]
+
+
+def test_runs_with_other_metric_parameters_are_refused(made, tmp_path):
+    other = tmp_path / "strict"
+    shutil.copytree(made["runs"] / "path_oracle", other)
+    metrics = json.loads((other / "metrics.json").read_text())
+    metrics["metric_params"]["match_radius"] = 0.3
+    (other / "metrics.json").write_text(json.dumps(metrics))
+    args = [
+        "report",
+        "--runs",
+        str(made["runs"] / "lanegap_lidar"),
+        "--runs",
+        str(other),
+        "--out",
+        str(tmp_path / "r"),
+    ]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 1
+    assert "strict/metrics.json: scored with other metric parameters" in result.output
+    assert "match_radius 0.3 vs 0.45" in result.output and "cannot share a table" in result.output
+    assert not (tmp_path / "r" / "report.md").exists()
+
+
+def test_viz_draws_the_frame_of_lowest_f1(made, tmp_path):
+    from benchmark.metrics import MetricParams
+
+    av2, pred = made["av2"], made["runs"] / "path_oracle" / "predictions.parquet"
+    gt = graphs_from_table(read_graph_table(av2), av2)
+    predicted = graphs_from_table(read_graph_table(pred), pred)
+    f1 = {
+        f: score_pairs([(predicted[f], gt[f])], MetricParams())["directed"]["topo"]["f1"] for f in predicted
+    }
+    assert len(set(f1.values())) > 1
+    worst = min(f1, key=lambda f: (f1[f], -len(gt[f].x), f))
+    out = tmp_path / "viz.png"
+    result = CliRunner().invoke(
+        app, ["viz", "--pred", str(pred), "--gt", str(av2), "--camera", "--out", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    assert worst in result.output and f"TOPO F1 {f1[worst]:.3f}" in result.output
+    image = np.asarray(Image.open(out).convert("RGB"), np.float64)
+    assert image.std() > 10
+    # the matched (green) and unmatched (red) vertices are both drawn
+    assert np.any(np.all(np.abs(image - [44, 160, 44]) < 8, axis=2))
+    assert np.any(np.all(np.abs(image - [214, 39, 40]) < 8, axis=2))
+    result = CliRunner().invoke(
+        app, ["viz", "--pred", str(pred), "--gt", str(av2), "--frame", "nope", "--out", str(out)]
+    )
+    assert result.exit_code == 1 and "no frame 'nope' in the ground truth" in result.output

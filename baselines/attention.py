@@ -14,11 +14,6 @@ import torch.nn.functional as F
 from torch import nn
 
 
-def inverse_sigmoid(x: torch.Tensor, eps: float = 1e-5) -> torch.Tensor:
-    x = x.clamp(eps, 1 - eps)
-    return torch.log(x / (1 - x))
-
-
 def deformable_sample(
     values: list[torch.Tensor], locations: torch.Tensor, weights: torch.Tensor
 ) -> torch.Tensor:

@@ -38,6 +38,7 @@ class Sample:
     paths: np.ndarray  # (G, N, 2) unit BEV coordinates
     seg: np.ndarray  # (bev_h, bev_w) int64: 1 lane, 0 background
     ground_z: float  # z of the ground under the BEV origin, in the BEV frame (frames.ground_z)
+    raster: tuple[np.ndarray, np.ndarray] | None = None  # prepared (mask, direction bins), when needed
 
 
 def resample_polyline(xy: np.ndarray, n: int) -> np.ndarray:
@@ -121,9 +122,12 @@ def dataset_range(data_dir: Path) -> tuple[tuple[float, float], tuple[float, flo
 
 
 class PreparedDataset(torch.utils.data.Dataset):
-    """The frames of one split of a prepared dataset, with their sensors and targets."""
+    """The frames of one split of a prepared dataset, with their sensors and the targets that a model
+    `needs` ("paths", "raster"; see baselines/models); the lane mask on the BEV grid always."""
 
-    def __init__(self, data_dir: Path, split: str, config: Config):
+    def __init__(
+        self, data_dir: Path, split: str, config: Config, needs: frozenset[str] = frozenset({"paths"})
+    ):
         self.data_dir = Path(data_dir)
         self.config = config
         manifest_path = self.data_dir / "manifest.json"
@@ -150,24 +154,29 @@ class PreparedDataset(torch.utils.data.Dataset):
         if unknown:
             raise ValueError(f"{self.data_dir / 'frames'}: frame {unknown[0]}: ground_z is null")
         self.frames = frames
+        self.needs = needs
         frame_ids = set(f["frame_id"] for f in frames)
         in_frames = pc.field("frame_id").isin(sorted(frame_ids))
-        columns = ["frame_id", "path_index", "x", "y", "rx", "ry"]
-        paths = read_table(self.data_dir, "paths", columns=columns, filter=in_frames)
-        paths = paths.sort_by([("frame_id", "ascending"), ("path_index", "ascending")])
+        self.path_points = getattr(config.decoder, "path_points", 0)
         self.paths: dict[str, list[np.ndarray]] = {frame_id: [] for frame_id in frame_ids}
-        n = config.decoder.path_points
-        for row in paths.to_pylist():
-            if len(row["rx"]) == n:
-                xy = np.stack([row["rx"], row["ry"]], 1)
-            else:
-                xy = resample_polyline(np.stack([row["x"], row["y"]], 1).astype(np.float64), n)
-            self.paths[row["frame_id"]].append(config.encoder.metres_to_unit(xy.astype(np.float32)))
+        if "paths" in needs:
+            columns = ["frame_id", "path_index", "x", "y", "rx", "ry"]
+            paths = read_table(self.data_dir, "paths", columns=columns, filter=in_frames)
+            paths = paths.sort_by([("frame_id", "ascending"), ("path_index", "ascending")])
+            n = self.path_points
+            for row in paths.to_pylist():
+                if len(row["rx"]) == n:
+                    xy = np.stack([row["rx"], row["ry"]], 1)
+                else:
+                    xy = resample_polyline(np.stack([row["x"], row["y"]], 1).astype(np.float64), n)
+                self.paths[row["frame_id"]].append(config.encoder.metres_to_unit(xy.astype(np.float32)))
         self.cache: dict[int, Sample] = {}  # filled when config.data.cache_samples
         self.rasters: dict[str, dict] = {}
-        if (self.data_dir / "rasters").is_dir() and config.decoder.aux_seg:
+        if (self.data_dir / "rasters").is_dir():
             for row in read_table(self.data_dir, "rasters", filter=in_frames).to_pylist():
                 self.rasters[row["frame_id"]] = row
+        elif "raster" in needs:
+            raise ValueError(f"{self.data_dir}: no rasters table (prepare the dataset with its rasters)")
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -179,7 +188,7 @@ class PreparedDataset(torch.utils.data.Dataset):
         config = self.config
         modality = config.encoder.modality
         paths = self.paths[frame["frame_id"]]
-        n = config.decoder.path_points
+        n = self.path_points
         paths_unit = np.stack(paths).astype(np.float32) if paths else np.zeros((0, n, 2), np.float32)
         bev_h, bev_w = config.encoder.bev_h, config.encoder.bev_w
         raster = self.rasters.get(frame["frame_id"])
@@ -188,6 +197,8 @@ class PreparedDataset(torch.utils.data.Dataset):
         else:
             seg = lane_mask_from_paths(paths_unit, bev_h, bev_w)
         sample = Sample(frame["frame_id"], None, None, None, None, None, paths_unit, seg, frame["ground_z"])
+        if "raster" in self.needs:
+            sample.raster = decode_raster(raster)
         if modality in ("camera", "fusion"):
             self._load_cameras(frame, sample)
         if modality in ("lidar", "fusion"):
@@ -245,16 +256,31 @@ class PreparedDataset(torch.utils.data.Dataset):
 
 
 @dataclass
+class Targets:
+    """What the models train on; a model reads the fields of its `needs` (baselines/models)."""
+
+    paths: list[torch.Tensor]  # per frame (G, N, 2) unit BEV coordinates; empty unless "paths"
+    seg: torch.Tensor  # (B, bev_h, bev_w) int64 lane mask on the BEV grid
+    raster_mask: torch.Tensor | None = None  # (B, H, W) uint8: the prepared 0.15 m lane raster ("raster")
+    raster_direction: torch.Tensor | None = None  # (B, H, W) uint8 direction bins, 0 = none ("raster")
+
+    def to(self, device: torch.device | str) -> Targets:
+        return Targets(
+            [p.to(device) for p in self.paths],
+            self.seg.to(device),
+            None if self.raster_mask is None else self.raster_mask.to(device),
+            None if self.raster_direction is None else self.raster_direction.to(device),
+        )
+
+
+@dataclass
 class Batch:
     frame_ids: list[str]
     sensors: SensorBatch
-    paths: list[torch.Tensor]  # per frame (G, N, 2)
-    seg: torch.Tensor  # (B, bev_h, bev_w) int64
+    targets: Targets
 
     def to(self, device: torch.device | str) -> Batch:
-        return Batch(
-            self.frame_ids, self.sensors.to(device), [p.to(device) for p in self.paths], self.seg.to(device)
-        )
+        return Batch(self.frame_ids, self.sensors.to(device), self.targets.to(device))
 
 
 def collate(samples: list[Sample]) -> Batch:
@@ -277,9 +303,10 @@ def collate(samples: list[Sample]) -> Batch:
             points[i, : len(s.points)] = s.points
             mask[i, : len(s.points)] = True
         sensors.points, sensors.points_mask = torch.from_numpy(points), torch.from_numpy(mask)
-    return Batch(
-        [s.frame_id for s in samples],
-        sensors,
-        [torch.from_numpy(s.paths) for s in samples],
-        torch.from_numpy(np.stack([s.seg for s in samples])),
+    targets = Targets(
+        [torch.from_numpy(s.paths) for s in samples], torch.from_numpy(np.stack([s.seg for s in samples]))
     )
+    if samples[0].raster is not None:
+        targets.raster_mask = torch.from_numpy(np.stack([s.raster[0] for s in samples]))
+        targets.raster_direction = torch.from_numpy(np.stack([s.raster[1] for s in samples]))
+    return Batch([s.frame_id for s in samples], sensors, targets)

@@ -21,8 +21,8 @@ from rich.table import Table
 from torch import nn
 
 from baselines.config import resolve_config
-from baselines.data import PreparedDataset
-from baselines.lanegap import LaneGAP, LaneGAPLoss, select_paths
+from baselines.data import PreparedDataset, Targets
+from baselines.models.lanegap import LaneGAP, LaneGAPLoss, select_paths
 from baselines.train import build_optimizer, lr_factor
 from benchmark.metrics import MetricParams
 from benchmark.path2graph import path2graph
@@ -89,7 +89,8 @@ def main() -> None:
     for _ in range(args.steps):
         chosen = rng.choice(len(train), config.train.batch_size, replace=False)
         outputs = model(torch.stack([train[k][1] for k in chosen]))
-        loss = criterion(outputs, [train[k][2] for k in chosen], None)["loss"]
+        targets = Targets([train[k][2] for k in chosen], torch.zeros(0))  # no aux segmentation here
+        loss = criterion(outputs, targets)["loss"]
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), config.train.grad_clip)

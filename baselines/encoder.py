@@ -20,6 +20,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from baselines.attention import DeformableAttention
+from baselines.blocks import FeedForward
 from baselines.config import EncoderConfig
 from baselines.resnet import build_resnet
 
@@ -161,11 +162,6 @@ class GeometryKernelAttention(nn.Module):
         seen = mask.any(-1, keepdim=True).to(values.dtype)
         values = values.reshape(batch, num_queries, dim) + self.value_proj.bias * seen
         return self.output_proj(values)
-
-
-class FeedForward(nn.Sequential):
-    def __init__(self, dim: int, hidden: int, dropout: float):
-        super().__init__(nn.Linear(dim, hidden), nn.ReLU(True), nn.Dropout(dropout), nn.Linear(hidden, dim))
 
 
 class BevLayer(nn.Module):

@@ -2,7 +2,7 @@
 
 Writes RUN_DIR/predictions.parquet (the `graphs` table schema of docs/DATA.md, the format `cli score`
 reads) and RUN_DIR/metrics.json: the TOPO scores plus the parameter count, the frame rates (network
-only, and with post-processing: path selection and Path2Graph), the device, the config and, unless
+only, and with the model's post-processing to a lane graph), the device, the config and, unless
 `floor=False`, the sensor-blind floor and the model's margin over it (baselines/floor.py).
 """
 
@@ -25,18 +25,18 @@ from torch.utils.flop_counter import FlopCounterMode
 from baselines.config import Config
 from baselines.data import PreparedDataset, collate
 from baselines.floor import blind_floor, floor_margins
-from baselines.lanegap import MODELING, LaneGAP, select_paths
+from baselines.models import Built, build
 from baselines.train import amp_settings
 from benchmark.metrics import MetricParams
-from benchmark.path2graph import path2graph
 from benchmark.score import default_range, graphs_from_table, read_graph_table, score_pairs
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
 
 
-def load_model(run_dir: Path, device: torch.device) -> tuple[LaneGAP, Config]:
+def load_model(run_dir: Path, device: torch.device) -> tuple[Built, Config]:
+    """The run's model (in eval mode on `device`) with its post-processing, and the run's config."""
     config = Config.load(run_dir / "config.json")
-    model = LaneGAP(config)
+    built = build(config)
     path = run_dir / "checkpoint.pt"
     try:  # weights_only: a checkpoint from elsewhere cannot run code
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
@@ -45,8 +45,14 @@ def load_model(run_dir: Path, device: torch.device) -> tuple[LaneGAP, Config]:
             f"{path}: refused: it holds objects other than tensors and plain values, which are never "
             "unpickled (runs trained before 2026-12-01 stored numpy state: retrain)"
         ) from error
-    model.load_state_dict(checkpoint["model"])
-    return model.to(device).eval(), config
+    try:
+        built.model.load_state_dict(checkpoint["model"])
+    except RuntimeError as error:  # other weight names or shapes: another model or an older version
+        first = str(error).splitlines()[1].strip() if "\n" in str(error) else str(error)
+        raise ValueError(f"{path}: its weights do not fit the {config.model} model of config.json ({first})")
+
+    built.model.to(device).eval()
+    return built, config
 
 
 def count_gflops(model: torch.nn.Module, sensors) -> float:
@@ -76,17 +82,19 @@ def evaluate(
     warmup_frames: int = 5,
     floor: bool = True,
 ) -> dict:
-    """Predict, run Path2Graph, score, and score the blind floor (`floor`, baselines/floor.py); returns
-    (and writes) the metrics. The floor's prior search is cached in DATA/floor_cache."""
+    """Predict, post-process to lane graphs, score, and score the blind floor (`floor`,
+    baselines/floor.py); returns (and writes) the metrics. The floor's prior search is cached in
+    DATA/floor_cache."""
     run_dir = Path(run_dir)
     device_ = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    model, config = load_model(run_dir, device_)
+    built, config = load_model(run_dir, device_)
+    model = built.model
     if config.train.threads and device_.type == "cpu":
         torch.set_num_threads(config.train.threads)
     if data_dir is None:
         data_dir = Path(json.loads((run_dir / "run.json").read_text())["data"])
     split = split or config.train.val_split
-    dataset = PreparedDataset(Path(data_dir), split, config)
+    dataset = PreparedDataset(Path(data_dir), split, config, built.needs)
     loader = DataLoader(dataset, batch_size=1, num_workers=config.data.num_workers, collate_fn=collate)
     autocast_dtype, _ = amp_settings(device_, config.train.amp)
     warmup_frames = min(warmup_frames, len(dataset) - 1)  # time at least one frame
@@ -109,9 +117,7 @@ def evaluate(
             outputs = model(sensors)
         sync()
         network_done = time.perf_counter()
-        _, points = select_paths(outputs, config.decoder.score_threshold)[0]
-        paths = [config.encoder.unit_to_metres(p.numpy().astype(np.float64)) for p in points]
-        graph = path2graph(paths)
+        graph = built.to_graphs(outputs)[0]
         done = time.perf_counter()
         if index >= warmup_frames:
             net_seconds += network_done - start
@@ -135,7 +141,7 @@ def evaluate(
         "data": str(data_dir),
         "params": sum(p.numel() for p in model.parameters()),
         "model": config.model,
-        "modeling": MODELING,
+        "modeling": built.modeling,
         # torch's FLOP counter (forward pass, batch 1): matmuls and convolutions; the deformable
         # attention's bilinear sampling and the LiDAR scatter are not counted
         "gflops": gflops,

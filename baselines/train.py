@@ -25,7 +25,7 @@ from torch.utils.data import DataLoader, DistributedSampler
 
 from baselines.config import Config
 from baselines.data import PreparedDataset, collate, dataset_range
-from baselines.lanegap import LaneGAP, LaneGAPLoss
+from baselines.models import build
 
 console = Console(stderr=True)
 
@@ -123,13 +123,13 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
         config.encoder.x_range, config.encoder.y_range = crop
     # The same seed on every rank builds the same model; the ranks' streams differ from here on.
     torch.manual_seed(train_config.seed)
-    model = LaneGAP(config).to(device)
-    criterion = LaneGAPLoss(config.decoder)
+    built = build(config)
+    model, criterion = built.model.to(device), built.loss
     random.seed(train_config.seed + rank)
     np.random.seed(train_config.seed + rank)
     torch.manual_seed(train_config.seed + rank)
 
-    dataset = PreparedDataset(data_dir, train_config.train_split, config)
+    dataset = PreparedDataset(data_dir, train_config.train_split, config, built.needs)
     # One sampler for one or many processes: its order depends on (seed, epoch) only.
     sampler = DistributedSampler(
         dataset, num_replicas=world_size, rank=rank, shuffle=True, seed=train_config.seed
@@ -175,8 +175,9 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     if master:
         parameters = sum(p.numel() for p in model.parameters())
         console.print(
-            f"lanegap {config.encoder.modality}: {parameters / 1e6:.2f} M parameters, {len(dataset)} frames, "
-            f"{steps_per_epoch} steps per epoch, {world_size} process(es) on {device.type}"
+            f"{config.model} {config.encoder.modality}: {parameters / 1e6:.2f} M parameters, "
+            f"{len(dataset)} frames, {steps_per_epoch} steps per epoch, "
+            f"{world_size} process(es) on {device.type}"
         )
     if distributed:
         trained = DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None)
@@ -209,7 +210,7 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
                 )
                 with autocast:
                     outputs = trained(batch.sensors)
-                losses = criterion(outputs, batch.paths, batch.seg)
+                losses = criterion(outputs, batch.targets)
                 optimizer.zero_grad(set_to_none=True)
                 scaler.scale(losses["loss"]).backward()
                 scaler.unscale_(optimizer)

@@ -1,0 +1,48 @@
+"""Small building blocks that several models share: MLP, feed-forward, inverse sigmoid, focal loss and
+the Bernstein matrix of Bezier curves."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+class FeedForward(nn.Sequential):
+    def __init__(self, dim: int, hidden: int, dropout: float):
+        super().__init__(nn.Linear(dim, hidden), nn.ReLU(True), nn.Dropout(dropout), nn.Linear(hidden, dim))
+
+
+def mlp(dim: int, out: int, layers: int = 3) -> nn.Sequential:
+    modules: list[nn.Module] = []
+    for _ in range(layers - 1):
+        modules += [nn.Linear(dim, dim), nn.ReLU(True)]
+    return nn.Sequential(*modules, nn.Linear(dim, out))
+
+
+def inverse_sigmoid(x: torch.Tensor, eps: float = 1e-5) -> torch.Tensor:
+    x = x.clamp(eps, 1 - eps)
+    return torch.log(x / (1 - x))
+
+
+def sigmoid_focal_loss(
+    logits: torch.Tensor, labels: torch.Tensor, alpha: float, gamma: float
+) -> torch.Tensor:
+    """Summed focal loss (RetinaNet) of binary logits against 0 / 1 labels."""
+    prob = logits.sigmoid()
+    ce = F.binary_cross_entropy_with_logits(logits, labels, reduction="none")
+    p_t = prob * labels + (1 - prob) * (1 - labels)
+    alpha_t = alpha * labels + (1 - alpha) * (1 - labels)
+    return (alpha_t * (1 - p_t) ** gamma * ce).sum()
+
+
+def bernstein_matrix(num_points: int, num_controls: int) -> torch.Tensor:
+    """(num_points, num_controls): row i is the Bernstein basis of degree K - 1 at t_i = i / (N - 1),
+    so `matrix @ controls` samples the curve at N evenly spaced parameters (LaneGAP Eq. 2)."""
+    degree = num_controls - 1
+    t = torch.linspace(0, 1, num_points, dtype=torch.float64).unsqueeze(1)
+    k = torch.arange(num_controls, dtype=torch.float64).unsqueeze(0)
+    binomial = torch.tensor([math.comb(degree, j) for j in range(num_controls)], dtype=torch.float64)
+    return (binomial * t**k * (1 - t) ** (degree - k)).float()

@@ -1,0 +1,36 @@
+"""The baselines under one contract: `build(config)` of each model module returns a `Built`, and
+`MODELS` maps a model name to its module's `build` and head config class (like `PRESETS`).
+
+Training (`baselines/train.py`) and evaluation (`baselines/evaluate.py`) only use the record: the
+`model` (whose `.encoder` is the shared `BEVEncoder`), its `loss`, its `to_graphs` post-processing and
+the prepared tables its targets come from (`needs`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from torch import nn
+
+
+@dataclass
+class Built:
+    model: nn.Module  # SensorBatch -> dict of output tensors
+    loss: nn.Module  # (outputs, data.Targets) -> dict of losses; "loss" is the total, the rest logged
+    to_graphs: Callable  # outputs -> one LaneGraph (metres, BEV frame) per frame of the batch
+    needs: frozenset[str]  # targets it trains on: "paths", "raster" (mask + direction at 0.15 m)
+    modeling: str  # the paper's family: "pixel", "piece" or "path"
+
+
+# After `Built`: the model modules import it.
+from baselines.models import lanegap  # noqa: E402
+
+MODELS = {"lanegap": lanegap.build}
+
+
+def build(config) -> Built:
+    """The model named by `config.model`, with its loss and post-processing."""
+    if config.model not in MODELS:
+        raise ValueError(f"unknown model {config.model!r}: expected one of {', '.join(MODELS)}")
+    return MODELS[config.model](config)

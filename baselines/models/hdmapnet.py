@@ -1,0 +1,204 @@
+"""HDMapNet (Li et al.), the pixel-wise baseline: the model, its loss and its post-processing, which
+`build()` returns together.
+
+The model: the shared BEV encoder, its features upsampled (bilinear) to the raster grid of the prepared
+targets (0.15 m cells: 400 x 200 for 60 x 30 m), then HDMapNet's `BevEncode` head: a ResNet-18 stem
+and layer1-3, and per branch an `Up` block (x4, concatenated with the layer1 skip) and a x2 upsampling
+to the raster size. Two branches: lane segmentation (2 classes) and direction, the unit tangent
+(cos, sin) of the travel direction regressed as LaneExtraction does ("L2 loss on the (-1, 1) normalized
+direction map", LaneGAP's appendix) instead of HDMapNet's 37-way classification.
+The loss: cross-entropy on the prepared lane raster, L2 on the direction at lane pixels.
+The post-processing: the thresholded mask and the predicted directions through Pixel2Graph.
+
+Conventions (docs/DATA.md): outputs are on the raster grid itself, row 0 the front edge (y max),
+column 0 the left edge (x min). HDMapNet's own canvas is transposed to this one (x forward along its
+columns); nothing here uses it. The direction (cos, sin) is in the BEV frame (x right, y forward), not
+in image coordinates, where rows run down and so flip the sign of the y component.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from baselines.config import Config
+from baselines.data import Targets
+from baselines.encoder import BEVEncoder, SensorBatch
+from baselines.models import Built
+from baselines.resnet import resnet18
+from benchmark.pixel2graph import RasterGrid, pixel2graph
+from pipeline.geometry import Range
+from pipeline.lane_graph import LaneGraph
+from pipeline.raster import Grid, direction_vectors
+
+
+@dataclass
+class HDMapNetConfig:
+    """The BevEncode head and its loss. `width` is its ResNet-18 width: layer1-3 have width, 2 x width and
+    4 x width channels, an `Up` block 4 x width and the last convolution 2 x width (HDMapNet: 64)."""
+
+    width: int = 64
+    resolution: float = 0.15  # metres per output cell: the prepared rasters' (pipeline TargetOptions)
+    direction_bins: int = 36  # the prepared rasters' bins, to hand Pixel2Graph the predicted direction
+    seg_weight: float = 1.0
+    direction_weight: float = 1.0
+    lane_class_weight: float = 1.0  # cross-entropy weight of the lane class (HDMapNet's BCE: 2.13)
+    score_threshold: float = 0.5  # lane probability above which a cell is lane
+
+
+# Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP
+# within 2 % (LaneGAP with its decoupled self-attention: 37,976,700 paper, 1,120,731 tiny).
+
+
+def paper_head() -> HDMapNetConfig:
+    """HDMapNet's own widths: 37,291,252 parameters with the paper encoder (camera)."""
+    return HDMapNetConfig(width=64)
+
+
+def tiny_head() -> HDMapNetConfig:
+    """1,102,732 parameters with the tiny encoder (camera)."""
+    return HDMapNetConfig(width=12)
+
+
+def raster_shape(config: Config) -> tuple[int, int]:
+    """(rows, columns) of the output: the prepared raster grid of the encoder's range."""
+    (x0, x1), (y0, y1) = config.encoder.x_range, config.encoder.y_range
+    return Grid(Range(x0, x1, y0, y1), config.decoder.resolution).shape
+
+
+class Up(nn.Module):
+    """HDMapNet's `Up`: upsample to the skip's size, concatenate the skip, two 3x3 conv-BN-ReLU."""
+
+    def __init__(self, in_channels: int, out_channels: int):
+        super().__init__()
+        self.conv = nn.Sequential(
+            nn.Conv2d(in_channels, out_channels, 3, padding=1, bias=False),
+            nn.BatchNorm2d(out_channels),
+            nn.ReLU(True),
+            nn.Conv2d(out_channels, out_channels, 3, padding=1, bias=False),
+            nn.BatchNorm2d(out_channels),
+            nn.ReLU(True),
+        )
+
+    def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+        # HDMapNet scales by 4 (its canvas is divisible by 8); the skip's size is the same there and
+        # also fits grids that are not.
+        x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=True)
+        return self.conv(torch.cat([skip, x], 1))
+
+
+class Branch(nn.Module):
+    """One output of BevEncode: `Up` with the layer1 skip, then x2 to the output size and a 1x1 conv."""
+
+    def __init__(self, width: int, out_channels: int):
+        super().__init__()
+        self.up1 = Up(width + 4 * width, 4 * width)
+        self.up2 = nn.Sequential(
+            nn.Conv2d(4 * width, 2 * width, 3, padding=1, bias=False),
+            nn.BatchNorm2d(2 * width),
+            nn.ReLU(True),
+            nn.Conv2d(2 * width, out_channels, 1),
+        )
+
+    def forward(self, x: torch.Tensor, skip: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+        x = self.up1(x, skip)
+        return self.up2(F.interpolate(x, size=size, mode="bilinear", align_corners=True))
+
+
+class HDMapNet(nn.Module):
+    """Sensors -> "seg": lane logits (B, 2, H, W) and "direction": (cos, sin) (B, 2, H, W), on the
+    raster grid (H x W cells of config.decoder.resolution)."""
+
+    def __init__(self, config: Config):
+        super().__init__()
+        width = config.decoder.width
+        self.encoder = BEVEncoder(config.encoder)
+        self.size = raster_shape(config)
+        # BevEncode: the ResNet-18 trunk's layers on a stem that takes the BEV channels; no max-pool,
+        # so layer1 is at 1/2 of the input and layer3 at 1/8.
+        trunk = resnet18(width)
+        self.conv1 = nn.Conv2d(config.encoder.channels, width, 7, stride=2, padding=3, bias=False)
+        self.bn1, self.relu = trunk.bn1, trunk.relu
+        self.layer1, self.layer2, self.layer3 = trunk.layer1, trunk.layer2, trunk.layer3
+        self.seg_branch = Branch(width, 2)
+        self.direction_branch = Branch(width, 2)
+
+    def forward(self, batch: SensorBatch) -> dict[str, torch.Tensor]:
+        return self.decode(self.encoder(batch))
+
+    def decode(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
+        """BEV features (B, C, bev_h, bev_w) -> the outputs of `forward`."""
+        # Cell-centred grids on the same range: align_corners=False maps every centre onto its place.
+        x = F.interpolate(bev, size=self.size, mode="bilinear", align_corners=False)
+        skip = self.layer1(self.relu(self.bn1(self.conv1(x))))
+        x = self.layer3(self.layer2(skip))
+        return {
+            "seg": self.seg_branch(x, skip, self.size),
+            "direction": self.direction_branch(x, skip, self.size),
+        }
+
+
+def direction_targets(bins: torch.Tensor, direction_bins: int = 36) -> torch.Tensor:
+    """Direction bins (B, H, W) -> (B, 2, H, W) unit (cos, sin) of each bin's centre angle in the BEV
+    frame; zero where there is no lane (bin 0)."""
+    vectors = torch.as_tensor(direction_vectors(direction_bins), dtype=torch.float32, device=bins.device)
+    return vectors[bins.long()].permute(0, 3, 1, 2)
+
+
+class HDMapNetLoss(nn.Module):
+    """Cross-entropy of the lane logits against the prepared raster, plus the squared error of the
+    (cos, sin) direction averaged over the lane pixels."""
+
+    def __init__(self, config: Config):
+        super().__init__()
+        self.config = config.decoder
+        self.size = raster_shape(config)
+
+    def forward(self, outputs: dict[str, torch.Tensor], targets: Targets) -> dict[str, torch.Tensor]:
+        config = self.config
+        mask, bins = targets.raster_mask, targets.raster_direction
+        if tuple(mask.shape[-2:]) != self.size:
+            # e.g. a dataset prepared at another resolution: the pixels would not be the same places
+            raise ValueError(
+                f"the prepared rasters are {tuple(mask.shape[-2:])} cells but the model outputs {self.size} "
+                f"({config.resolution} m cells over the encoder's range); set decoder.resolution to the "
+                "dataset's raster resolution"
+            )
+        logits = outputs["seg"].float()
+        class_weight = torch.tensor([1.0, config.lane_class_weight], device=logits.device)
+        seg_loss = F.cross_entropy(logits, mask.long(), weight=class_weight)
+        lane = (bins > 0).unsqueeze(1).float()
+        error = (outputs["direction"].float() - direction_targets(bins, config.direction_bins)) ** 2
+        direction_loss = (error * lane).sum() / lane.sum().clamp(min=1.0)
+        total = config.seg_weight * seg_loss + config.direction_weight * direction_loss
+        return {"loss": total, "seg": seg_loss.detach(), "direction": direction_loss.detach()}
+
+
+class PostProcess:
+    """Outputs -> one lane graph per frame in metres: cells whose lane probability passes the threshold,
+    their predicted direction as the prepared rasters' bins, through Pixel2Graph."""
+
+    def __init__(self, config: Config):
+        head = config.decoder
+        self.threshold = head.score_threshold
+        self.bins = Grid(Range(), head.resolution, direction_bins=head.direction_bins)
+        (x0, _), (_, y1) = config.encoder.x_range, config.encoder.y_range
+        self.grid = RasterGrid(x0, y1, head.resolution, head.direction_bins)
+
+    @torch.no_grad()
+    def __call__(self, outputs: dict[str, torch.Tensor]) -> list[LaneGraph]:
+        masks = (outputs["seg"].float().softmax(1)[:, 1] > self.threshold).cpu().numpy()
+        directions = outputs["direction"].float().cpu().numpy()
+        graphs = []
+        for mask, (dx, dy) in zip(masks, directions, strict=True):
+            bins = np.where(mask, self.bins.direction_bin(dx, dy), 0).astype(np.uint8)
+            graphs.append(pixel2graph(mask, bins, self.grid))
+        return graphs
+
+
+def build(config: Config) -> Built:
+    return Built(HDMapNet(config), HDMapNetLoss(config), PostProcess(config), frozenset({"raster"}), "pixel")

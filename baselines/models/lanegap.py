@@ -1,0 +1,135 @@
+"""LaneGAP (Liao et al., "Lane Graph as Path"): the model, its loss and its post-processing, which
+`build()` returns together.
+
+The model: the shared BEV encoder, the hierarchical-query deformable decoder regressing every path as N
+ordered points (or K Bezier control points, paper Eq. 2), and an auxiliary BEV lane segmentation in
+training. The loss: paper Eq. 3 and 4. The post-processing: paths above the score threshold, in
+metres, through Path2Graph.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn.functional as F
+from torch import nn
+
+from baselines.blocks import sigmoid_focal_loss
+from baselines.config import Config, DecoderConfig
+from baselines.data import Targets
+from baselines.encoder import BEVEncoder, SensorBatch
+from baselines.matcher import hungarian_match
+from baselines.models import Built
+from baselines.query_decoder import QueryDecoder
+from benchmark.path2graph import path2graph
+from pipeline.lane_graph import LaneGraph
+
+
+class LaneGAP(nn.Module):
+    """Sensors -> per decoder layer: path logits (L, B, Q) and path points (L, B, Q, N, 2) in unit
+    coordinates, plus the auxiliary BEV segmentation logits (B, 2, H, W) in training."""
+
+    def __init__(self, config: Config):
+        super().__init__()
+        head = config.decoder
+        dim = config.encoder.channels
+        self.encoder = BEVEncoder(config.encoder)
+        self.decoder = QueryDecoder(
+            dim, head.num_paths, head.path_points, head.bezier_points, head.layers, head.heads,
+            head.ffn_channels, head.dropout, head.deform_points,
+        )  # fmt: skip
+        self.seg_head = (
+            nn.Sequential(nn.Conv2d(dim, dim, 3, padding=1), nn.ReLU(True), nn.Conv2d(dim, 2, 1))
+            if head.aux_seg
+            else None
+        )
+
+    def forward(self, batch: SensorBatch) -> dict[str, torch.Tensor]:
+        return self.decode(self.encoder(batch))
+
+    def decode(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
+        """BEV features (B, C, H, W) -> the outputs of `forward`."""
+        outputs = self.decoder(bev)
+        if self.seg_head is not None and self.training:
+            outputs["seg"] = self.seg_head(bev)
+        return outputs
+
+
+class LaneGAPLoss(nn.Module):
+    """Paper Eq. 3 and 4 on every decoder layer: Hungarian matching, focal classification loss, L1 on
+    the matched paths' ordered points, and the auxiliary BEV segmentation cross-entropy."""
+
+    def __init__(self, config: DecoderConfig):
+        super().__init__()
+        self.config = config
+
+    def forward(self, outputs: dict[str, torch.Tensor], targets: Targets) -> dict[str, torch.Tensor]:
+        config = self.config
+        paths = targets.paths  # per frame (G, N, 2) unit path points
+        logits_per_layer, points_per_layer = outputs["logits"], outputs["points"]
+        device = logits_per_layer.device
+        # Normalise by the number of ground-truth paths over all processes (as DETR).
+        num_targets = torch.tensor(float(sum(len(t) for t in paths)), device=device)
+        if dist.is_available() and dist.is_initialized():
+            dist.all_reduce(num_targets)
+            num_targets = num_targets / dist.get_world_size()
+        num_targets = num_targets.clamp(min=1.0)
+        total = torch.zeros((), device=device)
+        for logits, points in zip(logits_per_layer, points_per_layer, strict=True):
+            labels = torch.zeros_like(logits, dtype=torch.float32)
+            point_loss = torch.zeros((), device=device)
+            for frame, target in enumerate(paths):
+                rows, cols = hungarian_match(logits[frame].detach(), points[frame].detach(), target,
+                                             config.cls_weight, config.point_weight, config.focal_alpha,
+                                             config.focal_gamma)  # fmt: skip
+                labels[frame, rows.to(device)] = 1.0
+                matched = points[frame, rows.to(device)].float() - target[cols.to(device)]
+                point_loss = point_loss + matched.abs().sum(-1).mean(-1).sum()
+            class_loss = sigmoid_focal_loss(logits.float(), labels, config.focal_alpha, config.focal_gamma)
+            class_loss = class_loss / num_targets
+            point_loss = point_loss / num_targets
+            total = total + config.cls_weight * class_loss + config.point_weight * point_loss
+        losses = {"cls": class_loss.detach(), "points": point_loss.detach()}
+        if "seg" in outputs:
+            seg_loss = F.cross_entropy(outputs["seg"].float(), targets.seg, ignore_index=-100)
+            seg_loss = torch.nan_to_num(seg_loss)  # a batch with no labelled cell
+            total = total + config.seg_weight * seg_loss
+            losses["seg"] = seg_loss.detach()
+        losses["loss"] = total
+        return losses
+
+
+@torch.no_grad()
+def select_paths(
+    outputs: dict[str, torch.Tensor], threshold: float
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """Last decoder layer -> per frame (scores (P,), points (P, N, 2) unit) of paths scoring > threshold,
+    best first."""
+    scores = outputs["logits"][-1].float().sigmoid()
+    points = outputs["points"][-1].float()
+    selected = []
+    for frame_scores, frame_points in zip(scores, points, strict=True):
+        keep = (frame_scores > threshold).nonzero().squeeze(1)
+        order = keep[frame_scores[keep].argsort(descending=True)]
+        selected.append((frame_scores[order].cpu(), frame_points[order].cpu()))
+    return selected
+
+
+class PostProcess:
+    """Outputs -> one lane graph per frame: the paths scoring above the threshold, in metres, through
+    Path2Graph (paper Alg. 2)."""
+
+    def __init__(self, config: Config):
+        self.encoder, self.threshold = config.encoder, config.decoder.score_threshold
+
+    def __call__(self, outputs: dict[str, torch.Tensor]) -> list[LaneGraph]:
+        return [
+            path2graph([self.encoder.unit_to_metres(p.numpy().astype(np.float64)) for p in points])
+            for _, points in select_paths(outputs, self.threshold)
+        ]
+
+
+def build(config: Config) -> Built:
+    needs = frozenset({"paths"})
+    return Built(LaneGAP(config), LaneGAPLoss(config.decoder), PostProcess(config), needs, "path")

@@ -49,7 +49,9 @@ def load_model(run_dir: Path, device: torch.device) -> tuple[Built, Config]:
         built.model.load_state_dict(checkpoint["model"])
     except RuntimeError as error:  # other weight names or shapes: another model or an older version
         first = str(error).splitlines()[1].strip() if "\n" in str(error) else str(error)
-        raise ValueError(f"{path}: its weights do not fit the {config.model} model of config.json ({first})")
+        raise ValueError(
+            f"{path}: its weights do not fit the {config.model} model of config.json ({first})"
+        ) from error
 
     built.model.to(device).eval()
     return built, config

@@ -112,7 +112,7 @@ def prepare(
 def train(
     data: Path = typer.Option(None, help="Prepared dataset (cli prepare --out); on --resume: the run's"),
     out: Path = typer.Option(..., help="Run folder: config.json, checkpoint.pt, log.jsonl"),
-    model: str = typer.Option("lanegap", help="Baseline to train: lanegap"),
+    model: str = typer.Option("lanegap", help="Baseline to train: lanegap (see baselines/models)"),
     preset: str = typer.Option("paper", help="paper (the paper's settings) or tiny (CPU, seconds per epoch)"),
     modality: str = typer.Option(None, help="camera, lidar or fusion (default: paper camera, tiny fusion)"),
     epochs: int = typer.Option(None, help="Epochs (paper: 24; 110 for the long schedule)"),
@@ -131,9 +131,6 @@ def train(
     from baselines.config import Config, apply_overrides, resolve_config
     from baselines.train import train as run_train
 
-    if model != "lanegap":
-        typer.secho(f"error: unknown model {model!r} (available: lanegap)", fg="red", err=True)
-        raise typer.Exit(1)
     with reported_errors():
         if resume:  # the run's own config; only --epochs and --set may change it (e.g. to extend it)
             config = Config.load(out / "config.json")
@@ -141,9 +138,8 @@ def train(
             data = data or Path(json.loads((out / "run.json").read_text())["data"])
         else:
             weights = str(pretrained) if pretrained else None
-            config = resolve_config(
-                preset, modality, epochs, batch_size, path_points, bezier_points, aux_seg, weights, set_
-            )
+            config = resolve_config(preset, modality, epochs, batch_size, path_points, bezier_points,
+                                    aux_seg, weights, set_, model)  # fmt: skip
         if data is None:
             raise ValueError("--data is required")
         summary = run_train(config, data, out, resume=resume, stop_after=stop_after)

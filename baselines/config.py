@@ -125,9 +125,9 @@ class TrainConfig:
 @dataclass
 class Config:
     preset: str = "paper"
-    model: Literal["lanegap"] = "lanegap"
+    model: str = "lanegap"  # a key of baselines.models.MODELS
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
-    decoder: DecoderConfig = field(default_factory=DecoderConfig)
+    decoder: Any = field(default_factory=DecoderConfig)  # the model's head config (its own dataclass)
     data: DataConfig = field(default_factory=DataConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
@@ -140,6 +140,9 @@ class Config:
     @staticmethod
     def from_dict(values: dict[str, Any]) -> Config:
         config = Config()
+        if values.get("model", "lanegap") != "lanegap":
+            config.model = values["model"]
+            config.decoder = model_head(config.model, values.get("preset", "paper"))
         for key, value in values.items():
             if isinstance(value, dict):
                 section = getattr(config, key)
@@ -211,6 +214,15 @@ def tiny() -> Config:
 PRESETS = {"paper": paper, "tiny": tiny}
 
 
+def model_head(model: str, preset: str) -> Any:
+    """The head config of `model` for `preset` (the presets above hold LaneGAP's)."""
+    from baselines.models import HEADS  # the model modules import this one
+
+    if model not in HEADS:
+        raise ValueError(f"unknown model {model!r}: expected one of {', '.join(HEADS)}")
+    return HEADS[model](preset)
+
+
 def apply_overrides(config: Config, overrides: list[str]) -> Config:
     """Apply `section.field=value` strings; the value is parsed as the type of the current value."""
     for item in overrides:
@@ -220,7 +232,8 @@ def apply_overrides(config: Config, overrides: list[str]) -> Config:
             raise ValueError(f"expected section.field=value, got {item!r}")
         section = getattr(config, section_name)
         if not hasattr(section, field_name):
-            raise ValueError(f"{section_name} has no field {field_name!r}")
+            owner = f"the {config.model} model's " if section_name == "decoder" else ""
+            raise ValueError(f"{owner}{section_name} has no field {field_name!r}")
         setattr(section, field_name, _coerce(getattr(section, field_name), text.strip(), name))
     return config
 
@@ -258,11 +271,15 @@ def resolve_config(
     aux_seg: bool | None = None,
     backbone_weights: str | None = None,
     overrides: list[str] | None = None,
+    model: str = "lanegap",
 ) -> Config:
-    """A preset with the `cli train` flags (None: keep the preset's value), then `--set` overrides."""
+    """A preset with the `cli train` flags (None: keep the preset's value), then `--set` overrides;
+    `model` picks the head config (`decoder`): a flag of another model's head is an error."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}")
     config = PRESETS[preset]()
+    if model != config.model:
+        config.model, config.decoder = model, model_head(model, preset)
     flags = {
         "encoder.modality": modality,
         "train.epochs": epochs,

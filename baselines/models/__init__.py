@@ -27,6 +27,7 @@ class Built:
 from baselines.models import lanegap  # noqa: E402
 
 MODELS = {"lanegap": lanegap.build}
+HEADS = {"lanegap": lanegap.head}  # preset name -> the model's head config (the config's `decoder`)
 
 
 def build(config) -> Built:

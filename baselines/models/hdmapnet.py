@@ -185,6 +185,8 @@ class PostProcess:
     def __init__(self, config: Config):
         head = config.decoder
         self.threshold = head.score_threshold
+        # Pixel2Graph reads a map of direction bins (the prepared rasters' format): the predicted vectors
+        # are binned as the rasters were, by the raster grid's own rule (at most half a bin, 5 degrees, off).
         self.bins = Grid(Range(), head.resolution, direction_bins=head.direction_bins)
         (x0, _), (_, y1) = config.encoder.x_range, config.encoder.y_range
         self.grid = RasterGrid(x0, y1, head.resolution, head.direction_bins)

@@ -16,7 +16,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from baselines.blocks import sigmoid_focal_loss
-from baselines.config import Config, DecoderConfig
+from baselines.config import PRESETS, Config, DecoderConfig
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
 from baselines.matcher import hungarian_match
@@ -128,6 +128,11 @@ class PostProcess:
             path2graph([self.encoder.unit_to_metres(p.numpy().astype(np.float64)) for p in points])
             for _, points in select_paths(outputs, self.threshold)
         ]
+
+
+def head(preset: str) -> DecoderConfig:
+    """LaneGAP's head config of a preset (the presets in baselines/config.py hold it)."""
+    return PRESETS[preset]().decoder
 
 
 def build(config: Config) -> Built:

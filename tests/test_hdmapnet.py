@@ -15,6 +15,7 @@ from baselines.models.hdmapnet import (
     PostProcess,
     build,
     direction_targets,
+    head,
     paper_head,
     tiny_head,
 )
@@ -196,8 +197,11 @@ def test_oracle_through_to_graphs_scores_the_pixel_roundtrip(synth_prepared, dat
 
 def test_head_sizes_are_lanegap_sized():
     # LaneGAP with the camera encoder, measured with baselines/models/lanegap.py (decoupled self-attention).
-    for preset, head, lanegap in ((tiny, tiny_head, 1_120_731), (paper, paper_head, 37_976_700)):
+    for preset, lanegap in ((tiny, 1_120_731), (paper, 37_976_700)):
         config = preset()
-        config.encoder.modality, config.model, config.decoder = "camera", "hdmapnet", head()
+        config.encoder.modality, config.model, config.decoder = "camera", "hdmapnet", head(preset.__name__)
         count = sum(p.numel() for p in build(config).model.parameters())
         assert abs(count / lanegap - 1) < 0.02, (preset.__name__, count)
+    assert head("tiny") == tiny_head() and head("paper") == paper_head() != tiny_head()
+    with pytest.raises(ValueError, match="no head size for preset 'huge'"):
+        head("huge")

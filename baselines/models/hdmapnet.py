@@ -64,6 +64,14 @@ def tiny_head() -> HDMapNetConfig:
     return HDMapNetConfig(width=12)
 
 
+def head(preset: str) -> HDMapNetConfig:
+    """HDMapNet's head config of a preset (`baselines.models.HEADS`)."""
+    heads = {"paper": paper_head, "tiny": tiny_head}
+    if preset not in heads:
+        raise ValueError(f"HDMapNet has no head size for preset {preset!r}: expected {', '.join(heads)}")
+    return heads[preset]()
+
+
 def raster_shape(config: Config) -> tuple[int, int]:
     """(rows, columns) of the output: the prepared raster grid of the encoder's range."""
     (x0, x1), (y0, y1) = config.encoder.x_range, config.encoder.y_range

@@ -24,10 +24,11 @@ class Built:
 
 
 # After `Built`: the model modules import it.
-from baselines.models import lanegap  # noqa: E402
+from baselines.models import hdmapnet, lanegap  # noqa: E402
 
-MODELS = {"lanegap": lanegap.build}
-HEADS = {"lanegap": lanegap.head}  # preset name -> the model's head config (the config's `decoder`)
+MODELS = {"lanegap": lanegap.build, "hdmapnet": hdmapnet.build}
+# preset name -> the model's head config (the config's `decoder`)
+HEADS = {"lanegap": lanegap.head, "hdmapnet": hdmapnet.head}
 
 
 def build(config) -> Built:

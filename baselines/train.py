@@ -13,6 +13,7 @@ import os
 import random
 import time
 from contextlib import nullcontext
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
 
 from baselines.config import Config
-from baselines.data import PreparedDataset, collate, dataset_range
+from baselines.data import Batch, PreparedDataset, collate, dataset_range
 from baselines.models import build
 
 console = Console(stderr=True)
@@ -88,6 +89,102 @@ def save_atomic(obj: object, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def setup_process(config: Config) -> tuple[torch.device, int, int]:
+    """(device, rank, world size): DDP when `torchrun` set WORLD_SIZE > 1 (NCCL on CUDA, gloo on CPU)."""
+    world_size = int(os.environ.get("WORLD_SIZE", "1"))
+    if world_size > 1:
+        dist.init_process_group(backend="nccl" if torch.cuda.is_available() else "gloo")
+    rank = dist.get_rank() if world_size > 1 else 0
+    if torch.cuda.is_available():
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        torch.cuda.set_device(device)
+        torch.backends.cudnn.benchmark = True
+    else:
+        device = torch.device("cpu")
+    if config.train.threads:
+        torch.set_num_threads(config.train.threads)
+    if config.train.batch_size % world_size:
+        raise ValueError(f"batch size {config.train.batch_size} is not divisible by {world_size} processes")
+    return device, rank, world_size
+
+
+def use_dataset_range(config: Config, data_dir: Path, master: bool) -> None:
+    """The BEV grid covers what the dataset was cropped to (its cells grow or shrink with it)."""
+    crop = dataset_range(data_dir)
+    if crop is not None and (tuple(config.encoder.x_range), tuple(config.encoder.y_range)) != crop:
+        if master:
+            Console().print(f"BEV range from the dataset: x {crop[0]}, y {crop[1]} m (the preset had "
+                            f"x {config.encoder.x_range}, y {config.encoder.y_range})")  # fmt: skip
+        config.encoder.x_range, config.encoder.y_range = crop
+
+
+@dataclass
+class Trainer:
+    """What one training step needs, and the state a checkpoint keeps."""
+
+    model: torch.nn.Module  # the model itself (what the checkpoint stores)
+    trained: torch.nn.Module  # the model, or its DDP wrapper (what the step calls)
+    criterion: torch.nn.Module
+    optimizer: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LambdaLR
+    scaler: torch.amp.GradScaler
+    autocast_dtype: torch.dtype | None
+    device: torch.device
+    grad_clip: float
+    step: int = 0
+
+    def train_step(self, batch: Batch) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """One optimiser step on one batch; returns the losses and the gradient norm before clipping."""
+        batch = batch.to(self.device)
+        dtype = self.autocast_dtype
+        with torch.autocast(self.device.type, dtype=dtype) if dtype else nullcontext():
+            outputs = self.trained(batch.sensors)
+        losses = self.criterion(outputs, batch.targets)
+        self.optimizer.zero_grad(set_to_none=True)
+        self.scaler.scale(losses["loss"]).backward()
+        self.scaler.unscale_(self.optimizer)
+        grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.grad_clip)
+        self.scaler.step(self.optimizer)
+        self.scaler.update()
+        self.scheduler.step()
+        self.step += 1
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+        return losses, grad_norm
+
+    def save(self, path: Path, epoch: int, config: Config, rng_states: list[dict]) -> None:
+        checkpoint = {
+            "model": self.model.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "scheduler": self.scheduler.state_dict(),
+            "scaler": self.scaler.state_dict(),
+            "epoch": epoch,
+            "step": self.step,
+            "rng": rng_states,
+            "config": config.to_dict(),
+        }
+        save_atomic(checkpoint, path)
+
+    def load(self, path: Path, rank: int) -> int:
+        """Restore the state of `path`; returns the epoch to start from."""
+        checkpoint = torch.load(path, map_location=self.device, weights_only=True)
+        self.model.load_state_dict(checkpoint["model"])
+        self.optimizer.load_state_dict(checkpoint["optimizer"])
+        self.scheduler.load_state_dict(checkpoint["scheduler"])
+        self.scaler.load_state_dict(checkpoint["scaler"])
+        set_rng_state(checkpoint["rng"][rank])
+        self.step = checkpoint["step"]
+        return checkpoint["epoch"]
+
+
+def all_rng_states(distributed: bool) -> list[dict]:
+    if not distributed:
+        return [rng_state()]
+    states: list = [None] * dist.get_world_size()
+    dist.all_gather_object(states, rng_state())
+    return states
+
+
 def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, stop_after: int = 0) -> dict:
     """Train `config` on the prepared dataset `data_dir`; returns a summary (loss, steps/s, seconds).
 
@@ -95,36 +192,13 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     (0: run to config.train.epochs), e.g. to fit a time-limited job; a later resume carries on.
     """
     data_dir, out_dir = Path(data_dir), Path(out_dir)
-    world_size = int(os.environ.get("WORLD_SIZE", "1"))
-    distributed = world_size > 1
-    if distributed:
-        dist.init_process_group(backend="nccl" if torch.cuda.is_available() else "gloo")
-    rank = dist.get_rank() if distributed else 0
-    local_rank = int(os.environ.get("LOCAL_RANK", "0"))
-    master = rank == 0
-    if torch.cuda.is_available():
-        device = torch.device("cuda", local_rank)
-        torch.cuda.set_device(device)
-        torch.backends.cudnn.benchmark = True
-    else:
-        device = torch.device("cpu")
-    train_config = config.train
-    if train_config.threads:
-        torch.set_num_threads(train_config.threads)
-    if train_config.batch_size % world_size:
-        raise ValueError(f"batch size {train_config.batch_size} is not divisible by {world_size} processes")
-
-    crop = dataset_range(data_dir)
-    if crop is not None and (tuple(config.encoder.x_range), tuple(config.encoder.y_range)) != crop:
-        # the BEV grid covers what the dataset was cropped to (its cells grow or shrink with it)
-        if master:
-            Console().print(f"BEV range from the dataset: x {crop[0]}, y {crop[1]} m (the preset had "
-                            f"x {config.encoder.x_range}, y {config.encoder.y_range})")  # fmt: skip
-        config.encoder.x_range, config.encoder.y_range = crop
+    device, rank, world_size = setup_process(config)
+    distributed, master, train_config = world_size > 1, rank == 0, config.train
+    use_dataset_range(config, data_dir, master)
     # The same seed on every rank builds the same model; the ranks' streams differ from here on.
     torch.manual_seed(train_config.seed)
     built = build(config)
-    model, criterion = built.model.to(device), built.loss
+    model = built.model.to(device)
     random.seed(train_config.seed + rank)
     np.random.seed(train_config.seed + rank)
     torch.manual_seed(train_config.seed + rank)
@@ -150,21 +224,22 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
         optimizer, lambda step: lr_factor(step, total_steps, config)
     )
     autocast_dtype, needs_scaler = amp_settings(device, train_config.amp)
-    scaler = torch.amp.GradScaler("cuda", enabled=needs_scaler)
+    trained = (
+        DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+        if distributed
+        else model
+    )
+    trainer = Trainer(model, trained, built.loss, optimizer, scheduler,
+                      torch.amp.GradScaler("cuda", enabled=needs_scaler), autocast_dtype, device,
+                      train_config.grad_clip)  # fmt: skip
 
-    start_epoch, step = 0, 0
+    start_epoch = 0
     checkpoint_path = out_dir / "checkpoint.pt"
     if resume:
-        checkpoint = torch.load(checkpoint_path, map_location=device, weights_only=True)
-        model.load_state_dict(checkpoint["model"])
-        optimizer.load_state_dict(checkpoint["optimizer"])
-        scheduler.load_state_dict(checkpoint["scheduler"])
-        scaler.load_state_dict(checkpoint["scaler"])
-        start_epoch, step = checkpoint["epoch"], checkpoint["step"]
-        set_rng_state(checkpoint["rng"][rank])
+        start_epoch = trainer.load(checkpoint_path, rank)
         if master:  # drop log lines of steps after the checkpoint (an interrupted epoch)
             lines = (out_dir / "log.jsonl").read_text().splitlines()
-            kept = [line for line in lines if json.loads(line)["step"] <= step]
+            kept = [line for line in lines if json.loads(line)["step"] <= trainer.step]
             (out_dir / "log.jsonl").write_text("".join(line + "\n" for line in kept))
     elif master:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -179,10 +254,6 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
             f"{len(dataset)} frames, {steps_per_epoch} steps per epoch, "
             f"{world_size} process(es) on {device.type}"
         )
-    if distributed:
-        trained = DistributedDataParallel(model, device_ids=[local_rank] if device.type == "cuda" else None)
-    else:
-        trained = model
 
     columns = [
         TextColumn("epoch {task.fields[epoch]}"),
@@ -196,7 +267,7 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     train_seconds, train_steps, loss_value = 0.0, 0, float("nan")
     with progress:
         task = progress.add_task(
-            "train", total=total_steps, completed=step, epoch=start_epoch, loss=0.0, speed=0.0
+            "train", total=total_steps, completed=trainer.step, epoch=start_epoch, loss=0.0, speed=0.0
         )
         last_epoch = min(train_config.epochs, start_epoch + stop_after) if stop_after else train_config.epochs
         for epoch in range(start_epoch, last_epoch):
@@ -204,23 +275,7 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
             sampler.set_epoch(epoch)
             epoch_start = last = time.perf_counter()
             for batch in loader:  # the step time below includes the wait for data
-                batch = batch.to(device)
-                autocast = (
-                    torch.autocast(device.type, dtype=autocast_dtype) if autocast_dtype else nullcontext()
-                )
-                with autocast:
-                    outputs = trained(batch.sensors)
-                losses = criterion(outputs, batch.targets)
-                optimizer.zero_grad(set_to_none=True)
-                scaler.scale(losses["loss"]).backward()
-                scaler.unscale_(optimizer)
-                grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), train_config.grad_clip)
-                scaler.step(optimizer)
-                scaler.update()
-                scheduler.step()
-                step += 1
-                if device.type == "cuda":
-                    torch.cuda.synchronize(device)
+                losses, grad_norm = trainer.train_step(batch)
                 now = time.perf_counter()
                 train_seconds += now - last
                 last = now
@@ -228,6 +283,7 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
                 loss_value = float(losses["loss"].detach())
                 speed = train_steps / train_seconds
                 progress.update(task, advance=1, epoch=epoch + 1, loss=loss_value, speed=speed)
+                step = trainer.step
                 if log_file is not None and (step % train_config.log_every == 0 or step == total_steps):
                     record = {
                         "step": step,
@@ -241,28 +297,14 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
                     }
                     log_file.write(json.dumps(record) + "\n")
                     log_file.flush()
-            states = [None] * world_size
-            if distributed:
-                dist.all_gather_object(states, rng_state())
-            else:
-                states = [rng_state()]
+            states = all_rng_states(distributed)
             if master:
-                checkpoint = {
-                    "model": model.state_dict(),
-                    "optimizer": optimizer.state_dict(),
-                    "scheduler": scheduler.state_dict(),
-                    "scaler": scaler.state_dict(),
-                    "epoch": epoch + 1,
-                    "step": step,
-                    "rng": states,
-                    "config": config.to_dict(),
-                }
-                save_atomic(checkpoint, checkpoint_path)
+                trainer.save(checkpoint_path, epoch + 1, config, states)
     if log_file is not None:
         log_file.close()
     summary = {
         "final_loss": loss_value,
-        "steps": step,
+        "steps": trainer.step,
         "train_seconds": train_seconds,
         "steps_per_s": train_steps / train_seconds if train_seconds else 0.0,
     }

@@ -60,7 +60,8 @@ def rebuild(data: Path, via: str, frame_ids: list[str], merge_radius: float) -> 
         out = {}
         for row in read_table(data, "rasters", filter=wanted).to_pylist():
             mask, direction = decode_raster(row)
-            grid = RasterGrid(crop.x_min, crop.y_max, float(row["resolution"]))
+            # the table stores float32 (0.15000000596): the grid's own value places the pixels
+            grid = RasterGrid(crop.x_min, crop.y_max, round(float(row["resolution"]), 6))
             out[row["frame_id"]] = pixel2graph(mask, direction, grid)
         return {f: out.get(f, LaneGraph.empty()) for f in frame_ids}
     raise ValueError(f"via must be one of {', '.join(VIAS)}, not {via!r}")

@@ -141,7 +141,9 @@ class HDMapNet(nn.Module):
     def decode(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
         """BEV features (B, C, bev_h, bev_w) -> the outputs of `forward`."""
         # Cell-centred grids on the same range: align_corners=False maps every centre onto its place.
-        x = F.interpolate(bev, size=self.size, mode="bilinear", align_corners=False)
+        # contiguous(): the encoder's map can be channels-last, and this head's backward on a
+        # channels-last input corrupts the heap in torch 2.13 on CPU (a crash, found by `cli train`).
+        x = F.interpolate(bev.contiguous(), size=self.size, mode="bilinear", align_corners=False)
         skip = self.layer1(self.relu(self.bn1(self.conv1(x))))
         x = self.layer3(self.layer2(skip))
         return {

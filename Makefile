@@ -21,6 +21,7 @@ demo: $(STAMP)
 	.venv/bin/cli roundtrip --data $(DEMO)/prepared/av2 --via pixel --out $(DEMO)/roundtrip_pixel.json
 	.venv/bin/cli train --model lanegap --data $(DEMO)/prepared/av2 --out $(DEMO)/runs/lanegap_lidar --preset tiny --modality lidar --epochs 2
 	.venv/bin/cli eval --run $(DEMO)/runs/lanegap_lidar --data $(DEMO)/prepared/av2 --split val
+	.venv/bin/cli report --runs $(DEMO)/runs --roundtrip $(DEMO)/roundtrip_path.json --roundtrip $(DEMO)/roundtrip_piece.json --roundtrip $(DEMO)/roundtrip_pixel.json --out $(DEMO)/report
 
 # The learning checks run alone: their 6-minute budgets are wall time on both cores, so plain
 # `pytest -n 2 tests` skips them unless LANEGRAPH_LEARNING_CHECK=1. They are not in `make test` while

@@ -31,10 +31,15 @@ CHECKS = [
     ("unseen_roads", 4, "fusion", 0.5),
     ("unseen_roads", 4, "lidar", 0.4),
 ]
-# MEASURED 2026-12-01, make test-learning alone, 13 min (seed 0, tiny preset: 12 epochs = 480 steps,
-# score threshold 0.5; all three fail):
-# directed TOPO / Junction TOPO F1 same roads fusion 0.170 / 0.187 (floor 0.201 / 0.186, 304 s), unseen
-# roads fusion 0.167 / 0.266 (floor 0.330 / 0.283, 315 s), unseen roads LiDAR 0.190 / 0.174 (164 s).
+# MEASURED 2026-12-01 (seed 0, tiny preset: 12 epochs = 480 steps, score threshold 0.5; all three fail),
+# directed TOPO / Junction TOPO F1, floor = max(other log's sensors, constant prior):
+# - decoder with one self-attention over all Q * N point queries, sigmoid over exactly the map: same roads
+#   fusion 0.170 / 0.187 (floor 0.201 / 0.186, 304 s), unseen roads fusion 0.167 / 0.266 (floor 0.330 /
+#   0.283, 315 s), unseen roads LiDAR 0.190 / 0.174 (164 s);
+# - decoupled self-attention (MapTRv2) and points over the map widened by 10 % (baselines/query_decoder.py):
+#   same roads fusion 0.173 / 0.257 (466 s with other work on the machine), unseen roads fusion 0.170 /
+#   0.296, unseen roads LiDAR 0.222 / 0.170 (156 s); unseen roads LiDAR with 36 epochs: 0.162 / 0.267
+#   (precision 0.12, recall 0.25: more steps fit the training worlds, not the unseen one).
 # Perfect 20-point paths through Path2Graph score 0.704 / 0.824 on the unseen-roads frames, and the
 # decoder trained on the ground-truth raster (python -m baselines.decoder_oracle) reaches only
 # ~0.3-0.37 / 0.30-0.33 on validation and ~0.35 / 0.5 on its own training frames: the decoder's

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import cv2
@@ -39,6 +39,8 @@ class Sample:
     seg: np.ndarray  # (bev_h, bev_w) int64: 1 lane, 0 background
     ground_z: float  # z of the ground under the BEV origin, in the BEV frame (frames.ground_z)
     raster: tuple[np.ndarray, np.ndarray] | None = None  # prepared (mask, direction bins), when needed
+    pieces: np.ndarray | None = None  # (P, n, 2) unit BEV coordinates, when needed
+    piece_links: np.ndarray | None = None  # (L, 2) int64 (src piece, dst piece), when needed
 
 
 def resample_polyline(xy: np.ndarray, n: int) -> np.ndarray:
@@ -170,6 +172,23 @@ class PreparedDataset(torch.utils.data.Dataset):
                 else:
                     xy = resample_polyline(np.stack([row["x"], row["y"]], 1).astype(np.float64), n)
                 self.paths[row["frame_id"]].append(config.encoder.metres_to_unit(xy.astype(np.float32)))
+        self.piece_points = getattr(config.decoder, "piece_points", 0)
+        self.pieces: dict[str, list[np.ndarray]] = {frame_id: [] for frame_id in frame_ids}
+        self.piece_links: dict[str, list[tuple[int, int]]] = {frame_id: [] for frame_id in frame_ids}
+        if "pieces" in needs:
+            columns = ["frame_id", "piece_index", "x", "y", "rx", "ry"]
+            pieces = read_table(self.data_dir, "pieces", columns=columns, filter=in_frames)
+            for row in pieces.sort_by([("frame_id", "ascending"), ("piece_index", "ascending")]).to_pylist():
+                if len(self.pieces[row["frame_id"]]) != row["piece_index"]:
+                    raise ValueError(f"{self.data_dir / 'pieces'}: frame {row['frame_id']}: piece indices "
+                                     "are not 0, 1, 2, ...")  # fmt: skip
+                xy = resample_polyline(
+                    np.stack([row["x"], row["y"]], 1).astype(np.float64), self.piece_points
+                )
+                self.pieces[row["frame_id"]].append(config.encoder.metres_to_unit(xy.astype(np.float32)))
+            links = read_table(self.data_dir, "piece_links", filter=in_frames).to_pylist()
+            for row in links:
+                self.piece_links[row["frame_id"]].append((row["src_piece"], row["dst_piece"]))
         self.cache: dict[int, Sample] = {}  # filled when config.data.cache_samples
         self.rasters: dict[str, dict] = {}
         if (self.data_dir / "rasters").is_dir():
@@ -199,6 +218,11 @@ class PreparedDataset(torch.utils.data.Dataset):
         sample = Sample(frame["frame_id"], None, None, None, None, None, paths_unit, seg, frame["ground_z"])
         if "raster" in self.needs:
             sample.raster = decode_raster(raster)
+        if "pieces" in self.needs:
+            pieces = self.pieces[frame["frame_id"]]
+            shape = (0, self.piece_points, 2)
+            sample.pieces = np.stack(pieces).astype(np.float32) if pieces else np.zeros(shape, np.float32)
+            sample.piece_links = np.array(self.piece_links[frame["frame_id"]], np.int64).reshape(-1, 2)
         if modality in ("camera", "fusion"):
             self._load_cameras(frame, sample)
         if modality in ("lidar", "fusion"):
@@ -263,14 +287,16 @@ class Targets:
     seg: torch.Tensor  # (B, bev_h, bev_w) int64 lane mask on the BEV grid
     raster_mask: torch.Tensor | None = None  # (B, H, W) uint8: the prepared 0.15 m lane raster ("raster")
     raster_direction: torch.Tensor | None = None  # (B, H, W) uint8 direction bins, 0 = none ("raster")
+    pieces: list[torch.Tensor] | None = None  # per frame (P, n, 2) unit BEV coordinates ("pieces")
+    piece_links: list[torch.Tensor] | None = None  # per frame (L, 2) int64: piece src ends where dst starts
 
     def to(self, device: torch.device | str) -> Targets:
-        return Targets(
-            [p.to(device) for p in self.paths],
-            self.seg.to(device),
-            None if self.raster_mask is None else self.raster_mask.to(device),
-            None if self.raster_direction is None else self.raster_direction.to(device),
-        )
+        def move(value):
+            if isinstance(value, list):
+                return [v.to(device) for v in value]
+            return None if value is None else value.to(device)
+
+        return Targets(*(move(getattr(self, f.name)) for f in fields(self)))
 
 
 @dataclass
@@ -309,4 +335,7 @@ def collate(samples: list[Sample]) -> Batch:
     if samples[0].raster is not None:
         targets.raster_mask = torch.from_numpy(np.stack([s.raster[0] for s in samples]))
         targets.raster_direction = torch.from_numpy(np.stack([s.raster[1] for s in samples]))
+    if samples[0].pieces is not None:
+        targets.pieces = [torch.from_numpy(s.pieces) for s in samples]
+        targets.piece_links = [torch.from_numpy(s.piece_links) for s in samples]
     return Batch([s.frame_id for s in samples], sensors, targets)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 
 from baselines.config import paper, tiny
 from baselines.data import Targets
@@ -17,6 +18,7 @@ from baselines.models.hdmapnet import (
     direction_targets,
     head,
     paper_head,
+    pooled_targets,
     tiny_head,
 )
 from benchmark.metrics import MetricParams
@@ -180,6 +182,7 @@ def test_oracle_through_to_graphs_scores_the_pixel_roundtrip(synth_prepared, dat
     data, stride = synth_prepared[dataset], 4
     config = tiny()
     config.model, config.decoder = "hdmapnet", tiny_head()
+    config.decoder.resolution = 0.15  # the round trip's: the prepared rasters' own cells
     crop = Range.parse(default_range(data))
     config.encoder.x_range, config.encoder.y_range = (crop.x_min, crop.x_max), (crop.y_min, crop.y_max)
     post = build(config).to_graphs
@@ -213,3 +216,20 @@ def test_head_sizes_are_lanegap_sized():
     assert head("tiny") == tiny_head() and head("paper") == paper_head() != tiny_head()
     with pytest.raises(ValueError, match="no head size for preset 'huge'"):
         head("huge")
+
+
+def test_pooled_targets_keep_the_lanes_and_their_directions():
+    # 0.3 m outputs (the tiny head) on 0.15 m rasters: every 2 x 2 block with a lane cell is lane, and
+    # its direction is the lanes' own (both lanes of `lanes` are straight where they do not bend).
+    mask, direction = (torch.from_numpy(a)[None] for a in rasterize(lanes(True), Grid(RANGE)))
+    lane, vectors = pooled_targets(mask, direction, (40, 20))
+    assert lane.shape == (1, 40, 20) and vectors.shape == (1, 2, 40, 20)
+    expected = F.max_pool2d(mask[:, None].float(), 2)[:, 0].long()
+    assert torch.equal(lane, expected) and lane.sum() > 20
+    norms = vectors.norm(dim=1)[lane > 0]
+    assert torch.allclose(norms, torch.ones_like(norms), atol=1e-5)
+    assert torch.all(vectors.norm(dim=1)[lane == 0] == 0)
+    # the straight lane at x = -1.5 (column 3 at 0.3 m) drives forward (+y) from y = -6 to 0
+    assert torch.allclose(vectors[0, :, 22:38, 5], torch.tensor([[0.0], [1.0]]).expand(2, 16), atol=0.09)
+    with pytest.raises(ValueError, match="whole multiple"):
+        pooled_targets(mask, direction, (30, 15))

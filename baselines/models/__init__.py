@@ -24,11 +24,11 @@ class Built:
 
 
 # After `Built`: the model modules import it.
-from baselines.models import hdmapnet, lanegap  # noqa: E402
+from baselines.models import hdmapnet, lanegap, maptr, stsu  # noqa: E402
 
-MODELS = {"lanegap": lanegap.build, "hdmapnet": hdmapnet.build}
+MODELS = {"lanegap": lanegap.build, "hdmapnet": hdmapnet.build, "maptr": maptr.build, "stsu": stsu.build}
 # preset name -> the model's head config (the config's `decoder`)
-HEADS = {"lanegap": lanegap.head, "hdmapnet": hdmapnet.head}
+HEADS = {"lanegap": lanegap.head, "hdmapnet": hdmapnet.head, "maptr": maptr.head, "stsu": stsu.head}
 
 
 def build(config) -> Built:

@@ -1,0 +1,66 @@
+"""MapTR (Liao et al.), the piece-wise polyline baseline: its head config; the model, loss and
+post-processing are the piece-wise ones (baselines/piecewise.py), which `build()` returns together.
+
+The model: the shared BEV encoder and the hierarchical-query decoder (the one LaneGAP uses) regressing
+every piece as 20 ordered points, one ordering only since pieces are directed, plus STSU's association
+head on each piece's instance feature (the mean of its point features). The loss: MapTR's focal
+classification (2.0), point L1 (5.0) and direction cosine (0.005) at every layer, and the association
+cross-entropy. The post-processing: pieces and links through Piece2Graph.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from baselines.config import Config
+from baselines.models import Built
+from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess
+
+
+@dataclass
+class MapTRConfig:
+    num_pieces: int = 100  # instance queries: frames hold more pieces than paths (pieces end at junctions)
+    piece_points: int = 20  # points per piece (MapTR's 20; the prepared targets are resampled to it)
+    layers: int = 6
+    heads: int = 8
+    ffn_channels: int = 512
+    deform_points: int = 4  # samples per head in the deformable cross-attention
+    dropout: float = 0.1
+    cls_weight: float = 2.0
+    point_weight: float = 5.0
+    direction_weight: float = 0.005
+    link_weight: float = 1.0
+    max_link_pos_weight: float = 50.0  # the association loss's positive weight is clamped to this
+    focal_alpha: float = 0.25
+    focal_gamma: float = 2.0
+    score_threshold: float = 0.4  # pieces kept at inference
+    link_threshold: float = 0.5  # association probability above which i -> j is a link
+
+
+# Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP within
+# 3 % (LaneGAP: 37,976,700 paper, 1,120,731 tiny). Its decoder is LaneGAP's at the same widths; the
+# association head (about 0.2 M / 12 k) takes the place of LaneGAP's auxiliary segmentation head.
+
+
+def paper_head() -> MapTRConfig:
+    """37,604,963 parameters with the paper encoder (camera)."""
+    return MapTRConfig()
+
+
+def tiny_head() -> MapTRConfig:
+    """1,097,498 parameters with the tiny encoder (camera); the layers and widths of LaneGAP's tiny head,
+    40 queries for at most 29 pieces a frame in the synthetic data."""
+    return MapTRConfig(num_pieces=40, layers=3, heads=4, ffn_channels=128, dropout=0.0, score_threshold=0.5)
+
+
+def head(preset: str) -> MapTRConfig:
+    """MapTR's head config of a preset (`baselines.models.HEADS`)."""
+    heads = {"paper": paper_head, "tiny": tiny_head}
+    if preset not in heads:
+        raise ValueError(f"MapTR has no head size for preset {preset!r}: expected {', '.join(heads)}")
+    return heads[preset]()
+
+
+def build(config: Config) -> Built:
+    loss = PieceCriterion(config, config.decoder.direction_weight)
+    return Built(PieceModel(config), loss, PiecePostProcess(config), frozenset({"pieces"}), "piece")

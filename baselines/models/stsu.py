@@ -1,0 +1,125 @@
+"""STSU (Can et al., "Structured Bird's-Eye-View Traffic Scene Understanding"), the piece-wise Bezier
+baseline: its head config, the Bezier fit of its targets and its loss; the model and the
+post-processing are the piece-wise ones (baselines/piecewise.py), which `build()` returns together.
+
+The model: the shared BEV encoder and the shared query decoder in Bezier mode (4 control points per
+piece through 6 layers that refine them, the same deformable attention over the BEV as LaneGAP's, so
+that only the modelling differs) and the association head on the pieces' instance features. The loss:
+Hungarian matching (2 x focal + 5 x L1 of the control points), sigmoid focal classification and L1 on
+the matched control points at every layer, the association cross-entropy. The ground-truth control
+points: a least-squares fit on arc-length samples of each prepared piece. The post-processing: the
+curves sampled at `piece_points`, pieces and links through Piece2Graph.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from baselines.blocks import bernstein_matrix
+from baselines.config import Config
+from baselines.models import Built
+from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess
+
+
+@dataclass
+class STSUConfig:
+    num_pieces: int = 100  # instance queries
+    piece_points: int = 20  # the prepared pieces' points (fitted) and the curves' samples (post-processing)
+    bezier_points: int = 4  # control points per piece (STSU: a cubic)
+    layers: int = 6
+    heads: int = 8
+    ffn_channels: int = 512
+    deform_points: int = 4
+    dropout: float = 0.1
+    cls_weight: float = 2.0
+    point_weight: float = 5.0  # L1 of the control points
+    link_weight: float = 1.0
+    max_link_pos_weight: float = 50.0  # the association loss's positive weight is clamped to this
+    focal_alpha: float = 0.25
+    focal_gamma: float = 2.0
+    score_threshold: float = 0.4
+    link_threshold: float = 0.5
+
+
+# Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP within
+# 1 % (LaneGAP: 37,976,700 paper, 1,120,731 tiny), at LaneGAP's decoder widths (the Bezier
+# attention's offsets per anchor add what the association head saves on LaneGAP's segmentation head).
+
+
+def paper_head() -> STSUConfig:
+    """38,037,667 parameters with the paper encoder (camera)."""
+    return STSUConfig()
+
+
+def tiny_head() -> STSUConfig:
+    """1,122,250 parameters with the tiny encoder (camera); LaneGAP's tiny layers and widths."""
+    return STSUConfig(num_pieces=40, layers=3, heads=4, ffn_channels=128, dropout=0.0, score_threshold=0.5)
+
+
+def head(preset: str) -> STSUConfig:
+    """STSU's head config of a preset (`baselines.models.HEADS`)."""
+    heads = {"paper": paper_head, "tiny": tiny_head}
+    if preset not in heads:
+        raise ValueError(f"STSU has no head size for preset {preset!r}: expected {', '.join(heads)}")
+    return heads[preset]()
+
+
+def bernstein_basis(t: torch.Tensor, num_controls: int) -> torch.Tensor:
+    """Parameters t (..., n) in [0, 1] -> (..., n, K) Bernstein basis of degree K - 1 (blocks'
+    `bernstein_matrix` is this at evenly spaced t)."""
+    degree = num_controls - 1
+    k = torch.arange(num_controls, dtype=t.dtype, device=t.device)
+    binomial = t.new_tensor([math.comb(degree, j) for j in range(num_controls)])
+    t = t.unsqueeze(-1)
+    return binomial * t**k * (1 - t) ** (degree - k)
+
+
+def arc_length_parameters(points: torch.Tensor) -> torch.Tensor:
+    """Polylines (..., n, 2) -> (..., n) the fraction of the length travelled at each point; evenly
+    spaced for a polyline of no length."""
+    steps = (points[..., 1:, :] - points[..., :-1, :]).norm(dim=-1)
+    arc = torch.cat([torch.zeros_like(steps[..., :1]), steps.cumsum(-1)], -1)
+    even = torch.linspace(0, 1, points.shape[-2], dtype=points.dtype, device=points.device)
+    length = arc[..., -1:]
+    return torch.where(length > 0, arc / length.clamp(min=1e-12), even)
+
+
+def fit_bezier(points: torch.Tensor, num_controls: int) -> torch.Tensor:
+    """Polylines (..., n, 2) -> (..., K, 2) control points of the Bezier curve nearest in least squares
+    to the points at their arc-length parameters, with the first and last control points on the
+    polyline's ends: a piece's ends are the graph's vertices, and a free fit would move every junction
+    by its residual."""
+    dtype = points.dtype
+    points = points.double()
+    basis = bernstein_basis(arc_length_parameters(points), num_controls)  # (..., n, K)
+    first, last = points[..., :1, :], points[..., -1:, :]
+    residual = points - basis[..., :1] * first - basis[..., -1:] * last
+    inner = torch.linalg.pinv(basis[..., 1:-1]) @ residual  # (..., K - 2, 2)
+    return torch.cat([first, inner, last], -2).to(dtype)
+
+
+class STSULoss(PieceCriterion):
+    """The piece-wise criterion on control points: the predicted ones (the decoder returns its curves
+    sampled at N points) against those fitted to the prepared pieces."""
+
+    def __init__(self, config: Config):
+        super().__init__(config)
+        head = config.decoder
+        # The decoder returns B @ controls with B the (N, K) Bernstein matrix of full column rank, so
+        # pinv(B) recovers the controls exactly (and passes their gradient).
+        controls = torch.linalg.pinv(bernstein_matrix(head.piece_points, head.bezier_points).double())
+        self.register_buffer("controls", controls.float(), persistent=False)
+
+    def geometry(self, points: torch.Tensor) -> torch.Tensor:
+        return self.controls @ points
+
+    def target_geometry(self, pieces: torch.Tensor) -> torch.Tensor:
+        return fit_bezier(pieces, self.head.bezier_points)
+
+
+def build(config: Config) -> Built:
+    model = PieceModel(config, config.decoder.bezier_points)
+    return Built(model, STSULoss(config), PiecePostProcess(config), frozenset({"pieces"}), "piece")

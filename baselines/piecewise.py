@@ -1,0 +1,209 @@
+"""What the piece-wise baselines (MapTR: polylines, STSU: Bezier curves) share: the model, its
+association head, the criterion and the post-processing through Piece2Graph.
+
+A piece is a maximal lane stretch between junctions (docs/DATA.md); a lane graph is its pieces plus the
+links "piece i ends where piece j starts". The model: the shared BEV encoder, the shared query decoder
+regressing every piece in driving order, and STSU's association head scoring every ordered pair of
+queries as a link. The criterion (DETR's SetCriterion): per decoder layer, Hungarian matching, focal
+classification and L1 on the matched pieces; on the last layer, binary cross-entropy of the matched
+pairs' association logits against the prepared `piece_links`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn.functional as F
+from torch import nn
+
+from baselines.blocks import mlp, sigmoid_focal_loss
+from baselines.config import Config
+from baselines.data import Targets
+from baselines.encoder import BEVEncoder, SensorBatch
+from baselines.matcher import hungarian_match
+from baselines.query_decoder import QueryDecoder
+from benchmark.piece2graph import piece2graph
+from pipeline.lane_graph import LaneGraph
+
+
+class AssociationHead(nn.Module):
+    """Instance features (B, Q, C) -> (B, Q, Q) logits of "piece i ends where piece j starts": an MLP on
+    the concatenated features [f_i, f_j] of every ordered pair (STSU)."""
+
+    def __init__(self, dim: int):
+        super().__init__()
+        self.first = nn.Linear(2 * dim, dim)
+        self.rest = mlp(dim, 1, 2)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        # first([f_i, f_j]) = W_i f_i + W_j f_j + b: two (B, Q, C) products broadcast over the pairs
+        # instead of a (B, Q, Q, 2C) concatenation, Q times less work and memory for the same MLP
+        w_i, w_j = self.first.weight.split(features.shape[-1], dim=1)
+        hidden = F.linear(features, w_i, self.first.bias)[:, :, None] + F.linear(features, w_j)[:, None]
+        return self.rest(hidden.relu()).squeeze(-1)
+
+
+class PieceModel(nn.Module):
+    """Sensors -> per decoder layer piece logits (L, B, Q) and points (L, B, Q, N, 2) in unit coordinates
+    (N = piece_points; a Bezier decoder samples its curves there), the last layer's instance features
+    (B, Q, C) and the association logits "links" (B, Q, Q)."""
+
+    def __init__(self, config: Config, bezier_points: int = 0):
+        super().__init__()
+        head = config.decoder
+        dim = config.encoder.channels
+        self.encoder = BEVEncoder(config.encoder)
+        self.decoder = QueryDecoder(
+            dim, head.num_pieces, head.piece_points, bezier_points, head.layers, head.heads,
+            head.ffn_channels, head.dropout, head.deform_points,
+        )  # fmt: skip
+        self.association = AssociationHead(dim)
+
+    def forward(self, batch: SensorBatch) -> dict[str, torch.Tensor]:
+        return self.decode(self.encoder(batch))
+
+    def decode(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
+        """BEV features (B, C, H, W) -> the outputs of `forward`."""
+        outputs = self.decoder(bev)
+        outputs["links"] = self.association(outputs["features"])
+        return outputs
+
+
+def mean_over_processes(counts: torch.Tensor) -> torch.Tensor:
+    """Counts summed over all processes, divided by their number (DETR's num_boxes): every process
+    normalises by the same figure, and DDP's gradient mean makes it the whole batch's."""
+    if dist.is_available() and dist.is_initialized():
+        counts = counts.clone()
+        dist.all_reduce(counts)
+        counts = counts / dist.get_world_size()
+    return counts
+
+
+def association_targets(cols: torch.Tensor, links: torch.Tensor, num_pieces: int) -> torch.Tensor:
+    """cols (M,): the target piece of each matched query; links (L, 2) (src, dst) target pieces ->
+    (M, M) 0 / 1: 1 where matched query a's piece ends where matched query b's piece starts."""
+    adjacency = torch.zeros(num_pieces, num_pieces, device=cols.device)
+    adjacency[links[:, 0], links[:, 1]] = 1.0
+    return adjacency[cols][:, cols]
+
+
+def association_loss(
+    logits: torch.Tensor, matches: list[tuple[torch.Tensor, torch.Tensor]], targets: Targets,
+    max_pos_weight: float,
+) -> torch.Tensor:  # fmt: skip
+    """Binary cross-entropy of the association logits (B, Q, Q) of every ordered pair of matched queries
+    (the pair of a query with itself too: a piece may close a loop) against the prepared links.
+
+    Links are rare (about one per piece among the M^2 pairs of M pieces), so the positives are weighted
+    by negatives / positives of the batch (over all processes), clamped to [1, max_pos_weight]: the links
+    and the non-links then weigh about the same in total, and a batch with a handful of links does not
+    get an extreme weight. The mean is over the batch's matched pairs."""
+    pair_logits, labels = [], []
+    for frame, (rows, cols) in enumerate(matches):
+        pair_logits.append(logits[frame][rows][:, rows].flatten())
+        pieces = len(targets.pieces[frame])
+        labels.append(association_targets(cols, targets.piece_links[frame], pieces).flatten())
+    pair_logits, labels = torch.cat(pair_logits).float(), torch.cat(labels)
+    pairs, positives = mean_over_processes(torch.stack([labels.new_tensor(len(labels)), labels.sum()]))
+    pos_weight = ((pairs - positives) / positives.clamp(min=1.0)).clamp(1.0, max_pos_weight)
+    loss = F.binary_cross_entropy_with_logits(pair_logits, labels, pos_weight=pos_weight, reduction="sum")
+    return loss / pairs.clamp(min=1.0)
+
+
+def direction_loss(points: torch.Tensor, targets: torch.Tensor, extent: torch.Tensor) -> torch.Tensor:
+    """MapTR's direction loss, summed: 1 - cosine between the predicted and the target vectors of
+    consecutive points (M, N, 2), in metres (unit coordinates stretch x and y differently)."""
+    predicted = (points[:, 1:] - points[:, :-1]) * extent
+    target = (targets[:, 1:] - targets[:, :-1]) * extent
+    return (1 - F.cosine_similarity(predicted, target, dim=-1)).sum()
+
+
+class PieceCriterion(nn.Module):
+    """Every decoder layer: Hungarian matching (cls_weight x focal + point_weight x ordered L1), focal
+    classification, L1 on the matched pieces and, with a direction weight (MapTR), the direction loss;
+    the last layer: the association loss of its matched pairs. All but the association are summed over
+    the matched pieces and divided by the number of target pieces (over all processes), as LaneGAP.
+
+    What the L1 and the matching compare is each model's `geometry` of a piece: the N points as they are
+    (MapTR) or the Bezier control points (STSU, which overrides `geometry` and `target_geometry`)."""
+
+    def __init__(self, config: Config, direction_weight: float = 0.0):
+        super().__init__()
+        self.head = config.decoder
+        self.direction_weight = direction_weight
+        (x0, x1), (y0, y1) = config.encoder.x_range, config.encoder.y_range
+        self.register_buffer("extent", torch.tensor([x1 - x0, y1 - y0]), persistent=False)
+
+    def geometry(self, points: torch.Tensor) -> torch.Tensor:
+        """Predicted points (..., N, 2) -> what is matched and regressed."""
+        return points
+
+    def target_geometry(self, pieces: torch.Tensor) -> torch.Tensor:
+        """Prepared pieces (G, n, 2) -> what is matched and regressed."""
+        return pieces
+
+    def forward(self, outputs: dict[str, torch.Tensor], targets: Targets) -> dict[str, torch.Tensor]:
+        head = self.head
+        device = outputs["logits"].device
+        goals = [self.target_geometry(p.float()) for p in targets.pieces]
+        count = torch.tensor(float(sum(len(p) for p in targets.pieces)), device=device)
+        num_targets = mean_over_processes(count).clamp(min=1.0)
+        total = torch.zeros((), device=device)
+        for logits, points in zip(outputs["logits"], outputs["points"], strict=True):
+            points = points.float()
+            regressed = self.geometry(points)
+            labels = torch.zeros_like(logits, dtype=torch.float32)
+            point_loss = torch.zeros((), device=device)
+            dir_loss = torch.zeros((), device=device)
+            matches = []
+            for frame, goal in enumerate(goals):
+                rows, cols = hungarian_match(logits[frame].detach(), regressed[frame].detach(), goal,
+                                             head.cls_weight, head.point_weight, head.focal_alpha,
+                                             head.focal_gamma)  # fmt: skip
+                rows, cols = rows.to(device), cols.to(device)
+                matches.append((rows, cols))
+                labels[frame, rows] = 1.0
+                point_loss = point_loss + (regressed[frame, rows] - goal[cols]).abs().sum(-1).mean(-1).sum()
+                if self.direction_weight:
+                    target = targets.pieces[frame][cols].float()
+                    dir_loss = dir_loss + direction_loss(points[frame, rows], target, self.extent)
+            class_loss = sigmoid_focal_loss(logits.float(), labels, head.focal_alpha, head.focal_gamma)
+            class_loss, point_loss = class_loss / num_targets, point_loss / num_targets
+            dir_loss = dir_loss / num_targets
+            total = total + head.cls_weight * class_loss + head.point_weight * point_loss
+            total = total + self.direction_weight * dir_loss
+        link_loss = association_loss(outputs["links"], matches, targets, head.max_link_pos_weight)
+        total = total + head.link_weight * link_loss
+        losses = {"cls": class_loss.detach(), "points": point_loss.detach(), "links": link_loss.detach()}
+        if self.direction_weight:
+            losses["direction"] = dir_loss.detach()
+        losses["loss"] = total
+        return losses
+
+
+class PiecePostProcess:
+    """Outputs -> one lane graph per frame: the pieces scoring above the score threshold, in metres, the
+    links i -> j among them whose association probability passes the link threshold, through Piece2Graph
+    (which joins linked ends at their mean)."""
+
+    def __init__(self, config: Config):
+        head = config.decoder
+        self.encoder, self.threshold, self.link_threshold = (
+            config.encoder,
+            head.score_threshold,
+            head.link_threshold,
+        )
+
+    @torch.no_grad()
+    def __call__(self, outputs: dict[str, torch.Tensor]) -> list[LaneGraph]:
+        scores = outputs["logits"][-1].float().sigmoid().cpu()
+        points = outputs["points"][-1].float().cpu()
+        links = outputs["links"].float().sigmoid().cpu()
+        graphs = []
+        for frame_scores, frame_points, frame_links in zip(scores, points, links, strict=True):
+            keep = (frame_scores > self.threshold).nonzero().squeeze(1)
+            pieces = [self.encoder.unit_to_metres(p.numpy().astype(np.float64)) for p in frame_points[keep]]
+            pairs = (frame_links[keep][:, keep] > self.link_threshold).nonzero().numpy()
+            graphs.append(piece2graph(pieces, pairs))
+        return graphs

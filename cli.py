@@ -112,7 +112,7 @@ def prepare(
 def train(
     data: Path = typer.Option(None, help="Prepared dataset (cli prepare --out); on --resume: the run's"),
     out: Path = typer.Option(..., help="Run folder: config.json, checkpoint.pt, log.jsonl"),
-    model: str = typer.Option("lanegap", help="Baseline to train: lanegap or hdmapnet (baselines/models)"),
+    model: str = typer.Option("lanegap", help="lanegap, hdmapnet, maptr or stsu (baselines/models)"),
     preset: str = typer.Option("paper", help="paper (the paper's settings) or tiny (CPU, seconds per epoch)"),
     modality: str = typer.Option(None, help="camera, lidar or fusion (default: paper camera, tiny fusion)"),
     epochs: int = typer.Option(None, help="Epochs (paper: 24; 110 for the long schedule)"),

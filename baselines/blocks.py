@@ -38,11 +38,17 @@ def sigmoid_focal_loss(
     return (alpha_t * (1 - p_t) ** gamma * ce).sum()
 
 
-def bernstein_matrix(num_points: int, num_controls: int) -> torch.Tensor:
-    """(num_points, num_controls): row i is the Bernstein basis of degree K - 1 at t_i = i / (N - 1),
-    so `matrix @ controls` samples the curve at N evenly spaced parameters (LaneGAP Eq. 2)."""
+def bernstein_basis(t: torch.Tensor, num_controls: int) -> torch.Tensor:
+    """Parameters t (..., n) in [0, 1] -> (..., n, K) Bernstein basis of degree K - 1."""
     degree = num_controls - 1
-    t = torch.linspace(0, 1, num_points, dtype=torch.float64).unsqueeze(1)
-    k = torch.arange(num_controls, dtype=torch.float64).unsqueeze(0)
-    binomial = torch.tensor([math.comb(degree, j) for j in range(num_controls)], dtype=torch.float64)
-    return (binomial * t**k * (1 - t) ** (degree - k)).float()
+    k = torch.arange(num_controls, dtype=t.dtype, device=t.device)
+    binomial = t.new_tensor([math.comb(degree, j) for j in range(num_controls)])
+    t = t.unsqueeze(-1)
+    return binomial * t**k * (1 - t) ** (degree - k)
+
+
+def bernstein_matrix(num_points: int, num_controls: int) -> torch.Tensor:
+    """(num_points, num_controls): row i is the Bernstein basis at t_i = i / (N - 1), so
+    `matrix @ controls` samples the curve at N evenly spaced parameters (LaneGAP Eq. 2)."""
+    t = torch.linspace(0, 1, num_points, dtype=torch.float64)
+    return bernstein_basis(t, num_controls).float()

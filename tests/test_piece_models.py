@@ -10,7 +10,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from baselines.blocks import bernstein_matrix
+from baselines.blocks import bernstein_basis, bernstein_matrix
 from baselines.config import resolve_config, tiny
 from baselines.data import PreparedDataset, Targets, resample_polyline
 from baselines.encoder import SensorBatch
@@ -303,5 +303,5 @@ def test_fitted_bezier_is_what_the_decoder_samples():
     # the decoder samples its curves at evenly spaced t, so the oracle's curve is bernstein_matrix @ controls
     controls = torch.rand(4, 2, dtype=torch.float64)
     t = torch.linspace(0, 1, N, dtype=torch.float64)
-    assert torch.allclose(stsu.bernstein_basis(t, 4), bernstein_matrix(N, 4).double(), atol=1e-6)
-    assert F.l1_loss(stsu.bernstein_basis(t, 4) @ controls, bernstein_matrix(N, 4).double() @ controls) < 1e-6
+    assert torch.allclose(bernstein_basis(t, 4), bernstein_matrix(N, 4).double(), atol=1e-6)
+    assert F.l1_loss(bernstein_basis(t, 4) @ controls, bernstein_matrix(N, 4).double() @ controls) < 1e-6

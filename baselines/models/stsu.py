@@ -13,12 +13,11 @@ curves sampled at `piece_points`, pieces and links through Piece2Graph.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 
-from baselines.blocks import bernstein_matrix
+from baselines.blocks import bernstein_basis, bernstein_matrix
 from baselines.config import Config
 from baselines.models import Built
 from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess
@@ -65,16 +64,6 @@ def head(preset: str) -> STSUConfig:
     if preset not in heads:
         raise ValueError(f"STSU has no head size for preset {preset!r}: expected {', '.join(heads)}")
     return heads[preset]()
-
-
-def bernstein_basis(t: torch.Tensor, num_controls: int) -> torch.Tensor:
-    """Parameters t (..., n) in [0, 1] -> (..., n, K) Bernstein basis of degree K - 1 (blocks'
-    `bernstein_matrix` is this at evenly spaced t)."""
-    degree = num_controls - 1
-    k = torch.arange(num_controls, dtype=t.dtype, device=t.device)
-    binomial = t.new_tensor([math.comb(degree, j) for j in range(num_controls)])
-    t = t.unsqueeze(-1)
-    return binomial * t**k * (1 - t) ** (degree - k)
 
 
 def arc_length_parameters(points: torch.Tensor) -> torch.Tensor:

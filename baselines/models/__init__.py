@@ -23,7 +23,14 @@ class Built:
     modeling: str  # the paper's family: "pixel", "piece" or "path"
 
 
-# After `Built`: the model modules import it.
+def preset_head(model: str, heads: dict, preset: str):
+    """`heads[preset]()`, or a clear error naming the model and the presets it has."""
+    if preset not in heads:
+        raise ValueError(f"{model} has no head size for preset {preset!r}: expected {', '.join(heads)}")
+    return heads[preset]()
+
+
+# After `Built` and `preset_head`: the model modules import them.
 from baselines.models import hdmapnet, lanegap, maptr, stsu  # noqa: E402
 
 MODELS = {"lanegap": lanegap.build, "hdmapnet": hdmapnet.build, "maptr": maptr.build, "stsu": stsu.build}

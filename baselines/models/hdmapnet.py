@@ -28,7 +28,7 @@ from torch import nn
 from baselines.config import Config
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
-from baselines.models import Built
+from baselines.models import Built, preset_head
 from baselines.resnet import resnet18
 from benchmark.pixel2graph import RasterGrid, pixel2graph
 from pipeline.geometry import Range
@@ -71,10 +71,7 @@ def tiny_head() -> HDMapNetConfig:
 
 def head(preset: str) -> HDMapNetConfig:
     """HDMapNet's head config of a preset (`baselines.models.HEADS`)."""
-    heads = {"paper": paper_head, "tiny": tiny_head}
-    if preset not in heads:
-        raise ValueError(f"HDMapNet has no head size for preset {preset!r}: expected {', '.join(heads)}")
-    return heads[preset]()
+    return preset_head("HDMapNet", {"paper": paper_head, "tiny": tiny_head}, preset)
 
 
 def raster_shape(config: Config) -> tuple[int, int]:

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from baselines.config import Config
-from baselines.models import Built
+from baselines.models import Built, preset_head
 from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess
 
 
@@ -55,10 +55,7 @@ def tiny_head() -> MapTRConfig:
 
 def head(preset: str) -> MapTRConfig:
     """MapTR's head config of a preset (`baselines.models.HEADS`)."""
-    heads = {"paper": paper_head, "tiny": tiny_head}
-    if preset not in heads:
-        raise ValueError(f"MapTR has no head size for preset {preset!r}: expected {', '.join(heads)}")
-    return heads[preset]()
+    return preset_head("MapTR", {"paper": paper_head, "tiny": tiny_head}, preset)
 
 
 def build(config: Config) -> Built:

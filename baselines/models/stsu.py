@@ -19,7 +19,7 @@ import torch
 
 from baselines.blocks import bernstein_basis, bernstein_matrix
 from baselines.config import Config
-from baselines.models import Built
+from baselines.models import Built, preset_head
 from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess
 
 
@@ -60,10 +60,7 @@ def tiny_head() -> STSUConfig:
 
 def head(preset: str) -> STSUConfig:
     """STSU's head config of a preset (`baselines.models.HEADS`)."""
-    heads = {"paper": paper_head, "tiny": tiny_head}
-    if preset not in heads:
-        raise ValueError(f"STSU has no head size for preset {preset!r}: expected {', '.join(heads)}")
-    return heads[preset]()
+    return preset_head("STSU", {"paper": paper_head, "tiny": tiny_head}, preset)
 
 
 def arc_length_parameters(points: torch.Tensor) -> torch.Tensor:

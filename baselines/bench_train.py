@@ -1,10 +1,11 @@
-"""Training benchmark (`make bench-train`): LaneGAP, tiny preset, per modality, on the synthetic world.
+"""Training benchmark (`make bench-train`): every model, tiny preset, the same data and epochs.
 
-Writes the synthetic data, prepares it, trains one run per modality and evaluates it on the synthetic
-validation logs; prints and writes a JSON table of directed TOPO F1, train steps/s and frame rates.
+Writes the synthetic data, prepares it, trains one run per model and modality and evaluates it on the
+synthetic validation logs; prints one comparison table (directed and undirected Junction TOPO / TOPO
+P, R, F1, the blind floor, params, GFLOPs, train steps/s, FPS) and writes it as JSON.
 
-    python -m baselines.bench_train [--out bench_train] [--epochs 60] [--modalities camera,lidar,fusion]
-        [--worlds 4] [--seed 0]
+    python -m baselines.bench_train [--out bench_train] [--epochs 12] [--models lanegap,hdmapnet,maptr,stsu]
+        [--modalities camera] [--worlds 4] [--seed 0]
 """
 
 from __future__ import annotations
@@ -36,8 +37,9 @@ def prepare_synthetic(folder: Path, worlds: int = 4, seed: int = 0) -> Path:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("bench_train"))
-    parser.add_argument("--epochs", type=int, default=60)
-    parser.add_argument("--modalities", default="camera,lidar,fusion")
+    parser.add_argument("--epochs", type=int, default=12)
+    parser.add_argument("--models", default="lanegap,hdmapnet,maptr,stsu")
+    parser.add_argument("--modalities", default="camera")
     parser.add_argument("--worlds", type=int, default=4, help="4: validation on unseen roads; 1: the same")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
@@ -48,32 +50,33 @@ def main() -> None:
 
     data = prepare_synthetic(args.out / f"data_w{args.worlds}_s{args.seed}", args.worlds, args.seed)
     results = []
-    for modality in args.modalities.split(","):
-        run = args.out / f"lanegap_tiny_{modality}"
-        config = resolve_config("tiny", modality=modality, epochs=args.epochs)
-        start = time.perf_counter()
-        summary = train(config, data, run)
-        metrics = evaluate(run, data, "val", device="cpu")
-        results.append(
-            {
-                "modality": modality,
-                "epochs": args.epochs,
-                "directed_topo_f1": metrics["directed"]["topo"]["f1"],
-                "directed_junction_topo_f1": metrics["directed"]["junction_topo"]["f1"],
-                "undirected_topo_f1": metrics["undirected"]["topo"]["f1"],
-                "floor_topo_f1": metrics["floor"]["f1"]["directed"]["topo"],
-                "floor_junction_topo_f1": metrics["floor"]["f1"]["directed"]["junction_topo"],
-                "train_steps_per_s": summary["steps_per_s"],
-                "train_seconds": time.perf_counter() - start,
-                "params": metrics["params"],
-                "fps_net": metrics["fps_net"],
-                "fps": metrics["fps"],
+    for model in args.models.split(","):
+        for modality in args.modalities.split(","):
+            run = args.out / f"{model}_tiny_{modality}"
+            config = resolve_config("tiny", modality=modality, epochs=args.epochs, model=model)
+            start = time.perf_counter()
+            summary = train(config, data, run)
+            metrics = evaluate(run, data, "val", device="cpu")
+            row = {"model": model, "modality": modality, "epochs": args.epochs}
+            names = {"junction_topo": "J-TOPO", "topo": "TOPO"}
+            for mode in ("directed", "undirected"):
+                for metric, name in names.items():
+                    for key in ("precision", "recall", "f1"):
+                        row[f"{mode.replace('ected', '')} {name} {key[0].upper()}"] = metrics[mode][metric][key]
+            floor = metrics["floor"]["f1"]["directed"] if metrics.get("floor") else {}
+            row |= {
+                "floor TOPO F1": floor.get("topo", float("nan")),
+                "params (M)": metrics["params"] / 1e6,
+                "GFLOPs": metrics["gflops"],
+                "train steps/s": summary["steps_per_s"],
+                "FPS": metrics["fps"],
+                "seconds": time.perf_counter() - start,
             }
-        )
+            results.append(row)
     (args.out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
-    table = Table(title=f"LaneGAP tiny on the synthetic world ({args.epochs} epochs)")
+    table = Table(title=f"tiny preset on the synthetic data ({args.epochs} epochs, {args.worlds} worlds)")
     for key in results[0]:
-        table.add_column(key.replace("_", " "))
+        table.add_column(key)
     for row in results:
         table.add_row(*(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row.values()))
     Console().print(table)

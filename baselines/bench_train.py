@@ -59,10 +59,10 @@ def main() -> None:
             metrics = evaluate(run, data, "val", device="cpu")
             row = {"model": model, "modality": modality, "epochs": args.epochs}
             names = {"junction_topo": "J-TOPO", "topo": "TOPO"}
-            for mode in ("directed", "undirected"):
+            for mode, short in (("directed", "dir"), ("undirected", "undir")):
                 for metric, name in names.items():
                     for key in ("precision", "recall", "f1"):
-                        row[f"{mode.replace('ected', '')} {name} {key[0].upper()}"] = metrics[mode][metric][key]
+                        row[f"{short} {name} {key[0].upper()}"] = metrics[mode][metric][key]
             floor = metrics["floor"]["f1"]["directed"] if metrics.get("floor") else {}
             row |= {
                 "floor TOPO F1": floor.get("topo", float("nan")),

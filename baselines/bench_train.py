@@ -74,11 +74,13 @@ def main() -> None:
             }
             results.append(row)
     (args.out / "results.json").write_text(json.dumps(results, indent=2) + "\n")
+    # one column per run, so that four models fit a terminal
     table = Table(title=f"tiny preset on the synthetic data ({args.epochs} epochs, {args.worlds} worlds)")
-    for key in results[0]:
-        table.add_column(key)
+    table.add_column("")
     for row in results:
-        table.add_row(*(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row.values()))
+        table.add_column(f"{row['model']} {row['modality']}", justify="right")
+    for key in list(results[0])[3:]:
+        table.add_row(key, *(f"{row[key]:.3f}" for row in results))
     Console().print(table)
 
 

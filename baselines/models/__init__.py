@@ -1,5 +1,5 @@
-"""The baselines under one contract: `build(config)` of each model module returns a `Built`, and
-`MODELS` maps a model name to its module's `build` and head config class (like `PRESETS`).
+"""The baselines under one contract: `build(config)` of each model module returns a `Built`; `MODELS`
+maps a model name to its module's `build`, `HEADS` to its head config per preset (like `PRESETS`).
 
 Training (`baselines/train.py`) and evaluation (`baselines/evaluate.py`) only use the record: the
 `model` (whose `.encoder` is the shared `BEVEncoder`), its `loss`, its `to_graphs` post-processing and
@@ -19,7 +19,7 @@ class Built:
     model: nn.Module  # SensorBatch -> dict of output tensors
     loss: nn.Module  # (outputs, data.Targets) -> dict of losses; "loss" is the total, the rest logged
     to_graphs: Callable  # outputs -> one LaneGraph (metres, BEV frame) per frame of the batch
-    needs: frozenset[str]  # targets it trains on: "paths", "raster" (mask + direction at 0.15 m)
+    needs: frozenset[str]  # targets it trains on: "paths", "pieces" (+ links), "raster" (mask + direction)
     modeling: str  # the paper's family: "pixel", "piece" or "path"
 
 

@@ -54,3 +54,24 @@ def synth_prepared(synth_raw, tmp_path_factory) -> dict[str, Path]:
     prepare("av2", synth_raw / "av2" / "sensor", out / "av2", TargetOptions())
     prepare("nuscenes", synth_raw / "nuscenes", out / "nuscenes", TargetOptions(), version="v1.0-mini")
     return {"av2": out / "av2", "nuscenes": out / "nuscenes"}
+
+
+def overfit_history(built, sensors, targets, steps: int, lr: float = 3e-3) -> list[dict[str, float]]:
+    """The losses of `steps` Adam steps of a model's `Built` record on one fixed batch."""
+    import torch
+
+    optimiser = torch.optim.Adam(built.model.parameters(), lr=lr)
+    history = []
+    for _ in range(steps):
+        losses = built.loss(built.model(sensors), targets)
+        optimiser.zero_grad()
+        losses["loss"].backward()
+        optimiser.step()
+        history.append({k: v.item() for k, v in losses.items()})
+    return history
+
+
+@pytest.fixture
+def overfit():
+    """`overfit_history`, for the models' "the loss falls when overfitting one batch" tests."""
+    return overfit_history

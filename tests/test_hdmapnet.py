@@ -93,18 +93,9 @@ def test_backward_from_a_channels_last_bev_map():
     assert torch.isfinite(bev.grad).all() and bev.grad.abs().sum() > 0
 
 
-def test_loss_halves_when_overfitting_one_batch():
+def test_loss_halves_when_overfitting_one_batch(overfit):
     torch.manual_seed(0)
-    built = build(small_config())
-    sensors, targets = synthetic_batch()
-    optimiser = torch.optim.Adam(built.model.parameters(), lr=3e-3)
-    history = []
-    for _ in range(30):
-        losses = built.loss(built.model(sensors), targets)
-        optimiser.zero_grad()
-        losses["loss"].backward()
-        optimiser.step()
-        history.append({k: v.item() for k, v in losses.items()})
+    history = overfit(build(small_config()), *synthetic_batch(), steps=30)
     assert history[-1]["loss"] < 0.5 * history[0]["loss"]
     assert history[-1]["direction"] < 0.5 * history[0]["direction"]
 

@@ -99,18 +99,9 @@ def test_forward_backward_and_valid_graphs(model):
 
 
 @pytest.mark.parametrize("model", MODELS)
-def test_loss_halves_when_overfitting_one_batch(model):
+def test_loss_halves_when_overfitting_one_batch(model, overfit):
     torch.manual_seed(0)
-    built = build(small_config(model))
-    sensors, targets = synthetic_batch()
-    optimiser = torch.optim.Adam(built.model.parameters(), lr=3e-3)
-    history = []
-    for _ in range(40):
-        losses = built.loss(built.model(sensors), targets)
-        optimiser.zero_grad()
-        losses["loss"].backward()
-        optimiser.step()
-        history.append({k: v.item() for k, v in losses.items()})
+    history = overfit(build(small_config(model)), *synthetic_batch(), steps=40)
     assert history[-1]["loss"] < 0.5 * history[0]["loss"]
     assert history[-1]["links"] < 0.5 * history[0]["links"]
     assert history[-1]["points"] < 0.5 * history[0]["points"]

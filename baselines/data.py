@@ -94,9 +94,8 @@ def read_lidar(path: Path) -> np.ndarray:
     return points
 
 
-def lane_mask_from_raster(row: dict, bev_h: int, bev_w: int) -> np.ndarray:
-    """The `rasters` lane mask on the BEV grid: a BEV cell is lane if any raster cell inside it is."""
-    mask, _ = decode_raster(row)
+def lane_mask_from_raster(mask: np.ndarray, bev_h: int, bev_w: int) -> np.ndarray:
+    """A decoded `rasters` lane mask on the BEV grid: a BEV cell is lane if any raster cell inside it is."""
     if mask.shape[0] % bev_h == 0 and mask.shape[1] % bev_w == 0:
         fy, fx = mask.shape[0] // bev_h, mask.shape[1] // bev_w
         return mask.reshape(bev_h, fy, bev_w, fx).max(axis=(1, 3)).astype(np.int64)
@@ -160,32 +159,14 @@ class PreparedDataset(torch.utils.data.Dataset):
         frame_ids = set(f["frame_id"] for f in frames)
         in_frames = pc.field("frame_id").isin(sorted(frame_ids))
         self.path_points = getattr(config.decoder, "path_points", 0)
-        self.paths: dict[str, list[np.ndarray]] = {frame_id: [] for frame_id in frame_ids}
+        self.paths = {frame_id: [] for frame_id in frame_ids}
         if "paths" in needs:
-            columns = ["frame_id", "path_index", "x", "y", "rx", "ry"]
-            paths = read_table(self.data_dir, "paths", columns=columns, filter=in_frames)
-            paths = paths.sort_by([("frame_id", "ascending"), ("path_index", "ascending")])
-            n = self.path_points
-            for row in paths.to_pylist():
-                if len(row["rx"]) == n:
-                    xy = np.stack([row["rx"], row["ry"]], 1)
-                else:
-                    xy = resample_polyline(np.stack([row["x"], row["y"]], 1).astype(np.float64), n)
-                self.paths[row["frame_id"]].append(config.encoder.metres_to_unit(xy.astype(np.float32)))
+            self.paths |= self._polylines("paths", "path_index", self.path_points, in_frames)
         self.piece_points = getattr(config.decoder, "piece_points", 0)
-        self.pieces: dict[str, list[np.ndarray]] = {frame_id: [] for frame_id in frame_ids}
+        self.pieces = {frame_id: [] for frame_id in frame_ids}
         self.piece_links: dict[str, list[tuple[int, int]]] = {frame_id: [] for frame_id in frame_ids}
         if "pieces" in needs:
-            columns = ["frame_id", "piece_index", "x", "y", "rx", "ry"]
-            pieces = read_table(self.data_dir, "pieces", columns=columns, filter=in_frames)
-            for row in pieces.sort_by([("frame_id", "ascending"), ("piece_index", "ascending")]).to_pylist():
-                if len(self.pieces[row["frame_id"]]) != row["piece_index"]:
-                    raise ValueError(f"{self.data_dir / 'pieces'}: frame {row['frame_id']}: piece indices "
-                                     "are not 0, 1, 2, ...")  # fmt: skip
-                xy = resample_polyline(
-                    np.stack([row["x"], row["y"]], 1).astype(np.float64), self.piece_points
-                )
-                self.pieces[row["frame_id"]].append(config.encoder.metres_to_unit(xy.astype(np.float32)))
+            self.pieces |= self._polylines("pieces", "piece_index", self.piece_points, in_frames)
             links = read_table(self.data_dir, "piece_links", filter=in_frames).to_pylist()
             for row in links:
                 self.piece_links[row["frame_id"]].append((row["src_piece"], row["dst_piece"]))
@@ -196,6 +177,24 @@ class PreparedDataset(torch.utils.data.Dataset):
                 self.rasters[row["frame_id"]] = row
         elif "raster" in needs:
             raise ValueError(f"{self.data_dir}: no rasters table (prepare the dataset with its rasters)")
+
+    def _polylines(self, table: str, index: str, n: int, in_frames) -> dict[str, list[np.ndarray]]:
+        """{frame_id: [(n, 2) unit BEV coordinates, ...] in index order} of the paths or pieces table:
+        the prepared resampled points when they are n, else the full polyline resampled to n."""
+        columns = ["frame_id", index, "x", "y", "rx", "ry"]
+        rows = read_table(self.data_dir, table, columns=columns, filter=in_frames)
+        out: dict[str, list[np.ndarray]] = {}
+        for row in rows.sort_by([("frame_id", "ascending"), (index, "ascending")]).to_pylist():
+            polylines = out.setdefault(row["frame_id"], [])
+            if len(polylines) != row[index]:
+                where = f"{self.data_dir / table}: frame {row['frame_id']}"
+                raise ValueError(f"{where}: {index} is not 0, 1, 2, ...")
+            if len(row["rx"]) == n:
+                xy = np.stack([row["rx"], row["ry"]], 1)
+            else:
+                xy = resample_polyline(np.stack([row["x"], row["y"]], 1).astype(np.float64), n)
+            polylines.append(self.config.encoder.metres_to_unit(xy.astype(np.float32)))
+        return out
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -211,13 +210,14 @@ class PreparedDataset(torch.utils.data.Dataset):
         paths_unit = np.stack(paths).astype(np.float32) if paths else np.zeros((0, n, 2), np.float32)
         bev_h, bev_w = config.encoder.bev_h, config.encoder.bev_w
         raster = self.rasters.get(frame["frame_id"])
-        if raster is not None:
-            seg = lane_mask_from_raster(raster, bev_h, bev_w)
+        decoded = decode_raster(raster) if raster is not None else None  # once: seg and "raster" use it
+        if decoded is not None:
+            seg = lane_mask_from_raster(decoded[0], bev_h, bev_w)
         else:
             seg = lane_mask_from_paths(paths_unit, bev_h, bev_w)
         sample = Sample(frame["frame_id"], None, None, None, None, None, paths_unit, seg, frame["ground_z"])
         if "raster" in self.needs:
-            sample.raster = decode_raster(raster)
+            sample.raster = decoded
         if "pieces" in self.needs:
             pieces = self.pieces[frame["frame_id"]]
             shape = (0, self.piece_points, 2)

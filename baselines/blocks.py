@@ -1,11 +1,12 @@
-"""Small building blocks that several models share: MLP, feed-forward, inverse sigmoid, focal loss and
-the Bernstein matrix of Bezier curves."""
+"""Small building blocks that several models share: MLP, feed-forward, inverse sigmoid, focal loss, the
+Bernstein matrix of Bezier curves and the loss normaliser over processes."""
 
 from __future__ import annotations
 
 import math
 
 import torch
+import torch.distributed as dist
 import torch.nn.functional as F
 from torch import nn
 
@@ -52,3 +53,13 @@ def bernstein_matrix(num_points: int, num_controls: int) -> torch.Tensor:
     `matrix @ controls` samples the curve at N evenly spaced parameters (LaneGAP Eq. 2)."""
     t = torch.linspace(0, 1, num_points, dtype=torch.float64)
     return bernstein_basis(t, num_controls).float()
+
+
+def mean_over_processes(counts: torch.Tensor) -> torch.Tensor:
+    """Counts summed over all processes, divided by their number (DETR's num_boxes): every process
+    normalises by the same figure, and DDP's gradient mean makes it the whole batch's."""
+    if dist.is_available() and dist.is_initialized():
+        counts = counts.clone()
+        dist.all_reduce(counts)
+        counts = counts / dist.get_world_size()
+    return counts

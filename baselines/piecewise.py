@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-import torch.distributed as dist
 import torch.nn.functional as F
 from torch import nn
 
-from baselines.blocks import mlp, sigmoid_focal_loss
+from baselines.blocks import mean_over_processes, mlp, sigmoid_focal_loss
 from baselines.config import Config
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
@@ -68,16 +67,6 @@ class PieceModel(nn.Module):
         outputs = self.decoder(bev)
         outputs["links"] = self.association(outputs["features"])
         return outputs
-
-
-def mean_over_processes(counts: torch.Tensor) -> torch.Tensor:
-    """Counts summed over all processes, divided by their number (DETR's num_boxes): every process
-    normalises by the same figure, and DDP's gradient mean makes it the whole batch's."""
-    if dist.is_available() and dist.is_initialized():
-        counts = counts.clone()
-        dist.all_reduce(counts)
-        counts = counts / dist.get_world_size()
-    return counts
 
 
 def association_targets(cols: torch.Tensor, links: torch.Tensor, num_pieces: int) -> torch.Tensor:

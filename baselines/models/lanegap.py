@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-import torch.distributed as dist
 import torch.nn.functional as F
 from torch import nn
 
-from baselines.blocks import sigmoid_focal_loss
+from baselines.blocks import mean_over_processes, sigmoid_focal_loss
 from baselines.config import PRESETS, Config, DecoderConfig
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
@@ -70,10 +69,7 @@ class LaneGAPLoss(nn.Module):
         logits_per_layer, points_per_layer = outputs["logits"], outputs["points"]
         device = logits_per_layer.device
         # Normalise by the number of ground-truth paths over all processes (as DETR).
-        num_targets = torch.tensor(float(sum(len(t) for t in paths)), device=device)
-        if dist.is_available() and dist.is_initialized():
-            dist.all_reduce(num_targets)
-            num_targets = num_targets / dist.get_world_size()
+        num_targets = mean_over_processes(torch.tensor(float(sum(len(t) for t in paths)), device=device))
         num_targets = num_targets.clamp(min=1.0)
         total = torch.zeros((), device=device)
         for logits, points in zip(logits_per_layer, points_per_layer, strict=True):

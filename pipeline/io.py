@@ -129,18 +129,34 @@ def write_json(path: Path, obj) -> None:
     write_atomic(path, lambda tmp: tmp.write_text(json.dumps(obj, indent=2) + "\n"))
 
 
+def same_type(a: pa.DataType, b: pa.DataType) -> bool:
+    """Equal Arrow types, whatever the names of list items (Parquet writers name them item or element)."""
+    if pa.types.is_list(a) and pa.types.is_list(b):
+        return same_type(a.value_type, b.value_type)
+    if pa.types.is_struct(a) and pa.types.is_struct(b):
+        return [f.name for f in a] == [f.name for f in b] and all(
+            map(same_type, (f.type for f in a), (f.type for f in b))
+        )
+    return a == b
+
+
 def read_table(out: Path, table: str, columns: list[str] | None = None, filter=None) -> pa.Table:
     """One table of a prepared dataset, all shards together."""
     folder = Path(out) / table
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such table (is {out} a prepared dataset?)")
     dataset = ds.dataset(folder, format="parquet", schema=SCHEMAS[table])
-    # the unified schema would read a column a shard lacks as nulls: refuse older shards instead
+    # the unified schema would read a column a shard lacks as nulls, and cast one of another type:
+    # refuse such shards instead
     for fragment in dataset.get_fragments():
-        missing = [c for c in columns or SCHEMAS[table].names if c not in fragment.physical_schema.names]
-        if missing:
-            problem = "missing: prepared by an older version; re-run `cli prepare` with --overwrite"
-            raise DataError(fragment.path, f"column {missing[0]}", problem)
+        physical = fragment.physical_schema
+        for name in columns or SCHEMAS[table].names:
+            if name not in physical.names:
+                problem = "missing: prepared by an older version; re-run `cli prepare` with --overwrite"
+                raise DataError(fragment.path, f"column {name}", problem)
+            found, expected = physical.field(name).type, SCHEMAS[table].field(name).type
+            if not same_type(found, expected):
+                raise DataError(fragment.path, f"column {name}", f"is {found}, not {expected}")
     return dataset.to_table(columns=columns, filter=filter)
 
 

@@ -50,6 +50,18 @@ def synth(
     )
 
 
+@contextmanager
+def missing_ray():
+    """--executor ray without Ray installed: its install hint in one line, exit code 1."""
+    from pipeline.executor import RayMissing
+
+    try:
+        yield
+    except RayMissing as error:
+        typer.secho(f"error: {error}", fg="red", err=True)
+        raise typer.Exit(1) from error
+
+
 @app.command()
 def prepare(
     dataset: str = typer.Option(..., help="av2 or nuscenes"),
@@ -60,7 +72,13 @@ def prepare(
     ),
     split: str = typer.Option(None, help="Prepare one split (train, val, ...); default: all"),
     range_: str = typer.Option("30x60", "--range", help="Perception range WIDTHxLENGTH in metres (x by y)"),
-    workers: int = typer.Option(1, help="Worker processes, one log at a time each"),
+    workers: int = typer.Option(1, help="Worker processes, one log at a time each (ray: the local CPUs)"),
+    executor: str = typer.Option("local", help="local (this machine) or ray (one Ray task per log)"),
+    address: str = typer.Option(
+        None,
+        help="--executor ray: the cluster to join, auto or HOST:PORT (default: a local instance); "
+        "HOST:PORT of a cluster with token authentication needs RAY_AUTH_MODE=token",
+    ),
     frame_stride: int = typer.Option(1, help="Keep every K-th frame"),
     path_points: int = typer.Option(30, help="Points per resampled path"),
     piece_points: int = typer.Option(20, help="Points per resampled piece"),
@@ -85,7 +103,7 @@ def prepare(
     from pipeline.prepare import prepare as run_prepare
     from pipeline.targets import TargetOptions
 
-    with reported_errors():
+    with reported_errors(), missing_ray():
         options = TargetOptions(
             Range.parse(range_), path_points, piece_points, max_paths, resolution, line_width
         )
@@ -98,6 +116,7 @@ def prepare(
         summary = run_prepare(
             dataset, root, out, options, version=version, split=split, workers=workers,
             frame_stride=frame_stride, on_error=on_error, overwrite=overwrite, split_files=split_files,
+            executor=executor, address=address,
         )  # fmt: skip
     table = Table(title=f"prepared {out}")
     keys = ("frames", "frames_skipped", "paths_per_frame", "pieces_per_frame", "junctions_per_frame",

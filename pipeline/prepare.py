@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import resource
 import time
 from dataclasses import asdict, dataclass, field, replace
 from importlib import metadata
@@ -46,6 +47,7 @@ class LogResult:
     cap_hits: int = 0
     skipped: int = 0
     errors: list[dict] = field(default_factory=list)
+    peak_mib: float = 0.0  # peak resident memory of the process that prepared it, so far
 
 
 def find_jobs(dataset: str, root: Path, version: str, split: str | None, frame_stride: int) -> list[Job]:
@@ -238,6 +240,7 @@ def prepare_log(
     result.pieces = sum(len(t.pieces.chains) for t in targets)
     result.junctions = sum(len(t.pieces.junctions) for t in targets)
     result.cap_hits = sum(t.paths.cap_hit for t in targets)
+    result.peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return result
 
 
@@ -277,11 +280,23 @@ def prepare(
     on_error: str = "fail",
     overwrite: bool = False,
     split_files: dict[str, Path] | None = None,
+    executor: str = "local",
+    address: str | None = None,
 ) -> dict:
     """Prepare every log of root into out; returns (and prints) a summary. split_files ({split: file
-    of log ids or scene names}) replaces the dataset's own splits; logs in no file are left out."""
+    of log ids or scene names}) replaces the dataset's own splits; logs in no file are left out.
+    executor: local (this process, or a fork pool of `workers`) or ray (one Ray task per log: a local
+    instance of `workers` CPUs, or the cluster at address, "auto" or HOST:PORT; pipeline/executor.py)."""
     if on_error not in ("fail", "skip"):
         raise ValueError(f"--on-error must be fail or skip, not {on_error!r}")
+    if executor not in ("local", "ray"):
+        raise ValueError(f"--executor must be local or ray, not {executor!r}")
+    if address and executor != "ray":
+        raise ValueError("--address is for --executor ray")
+    if executor == "ray":  # before any work: a missing Ray is a one-line error, not a traceback later
+        from pipeline.executor import import_ray
+
+        import_ray()
     root, out = Path(root).resolve(), Path(out)
     if split_files:  # the files' splits replace the dataset's own; --split then picks one of theirs
         found = find_jobs(dataset, root, version, None, frame_stride)
@@ -323,7 +338,14 @@ def prepare(
     ]
     with Progress(*columns, console=console, transient=False) as progress:
         task = progress.add_task(f"{dataset} frames", total=sum(j.n_frames for j in todo))
-        if workers <= 1:
+        if executor == "ray":
+            from pipeline.executor import run_ray
+
+            results = run_ray(
+                todo, out, options, frame_stride, on_error, workers, address,
+                lambda job: progress.advance(task, job.n_frames),
+            )  # fmt: skip
+        elif workers <= 1:
             for job in todo:
                 results.append(
                     prepare_log(job, out, options, frame_stride, on_error, lambda: progress.advance(task))
@@ -358,6 +380,7 @@ def prepare(
         "path_cap_hits": sum(r.cap_hits for r in results),
         "seconds": elapsed,
         "frames_per_second": frames / elapsed if elapsed > 0 else 0.0,
+        "peak_worker_mib": max((r.peak_mib for r in results), default=0.0),
     }
     io.write_json(
         out / "manifest.json",

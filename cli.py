@@ -19,7 +19,10 @@ def reported_errors():
     try:
         yield
     except (ValueError, FileNotFoundError) as error:
-        typer.secho(f"error: {error}", fg="red", err=True)
+        message = str(error)
+        if "Original Traceback" in message:  # re-raised from a DataLoader worker: its last line says it
+            message = message.strip().splitlines()[-1].partition(": ")[2]
+        typer.secho(f"error: {message}", fg="red", err=True)
         raise typer.Exit(1) from error
 
 
@@ -144,7 +147,10 @@ def train(
     resume: bool = typer.Option(False, help="Continue the run in --out from its last checkpoint"),
     stop_after: int = typer.Option(0, help="End this run after that many epochs (0: all); --resume goes on"),
 ) -> None:
-    """Train a baseline on a prepared dataset (DDP when started by torchrun)."""
+    """Train a baseline on a prepared dataset; DDP when started by torchrun
+    (`torchrun --nproc_per_node N -m cli train ...`: --batch-size is over all N processes). --resume
+    refuses a dataset prepared with other target parameters, and falls back to checkpoint.prev.pt when
+    checkpoint.pt is damaged."""
     import json
 
     from baselines.config import Config, apply_overrides, resolve_config
@@ -175,7 +181,8 @@ def eval_(
         True, help="Also score the sensor-blind floor (other log's sensors, constant prior) and the margin"
     ),
 ) -> None:
-    """Predict a split, run Path2Graph, write predictions.parquet and metrics.json into the run folder."""
+    """Predict a split, run Path2Graph, write predictions.parquet and metrics.json into the run folder;
+    a dataset prepared with other target parameters than the run's is refused (stale data)."""
     from rich.console import Console
     from rich.table import Table
 
@@ -216,7 +223,11 @@ def eval_(
 
 @app.command()
 def score(
-    pred: Path = typer.Option(..., help="Predictions: a graph-table Parquet file (or a folder of shards)"),
+    pred: Path = typer.Option(
+        ...,
+        help="Predictions: a graph-table Parquet file (or a folder of shards). A ground-truth frame "
+        "without a row is scored as an empty prediction; a frame id not in the ground truth is refused",
+    ),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset or a graph-table file"),
     out: Path = typer.Option(None, help="Also write the JSON to this file"),
     step: float = typer.Option(0.15, help="Densification step, metres"),
@@ -226,7 +237,9 @@ def score(
     range_: str = typer.Option(None, "--range", help="mIoU grid WIDTHxLENGTH (default: the dataset's)"),
     workers: int = typer.Option(1, help="Worker processes (0: one per core)"),
 ) -> None:
-    """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md)."""
+    """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md);
+    the JSON records the thresholds and metric_version. Predictions of `cli eval` made by a model trained
+    on other target parameters than the ground truth's are refused (stale data)."""
     import json
 
     from benchmark.score import score as run_score

@@ -1,15 +1,19 @@
 """`cli eval`: predict every frame of a split, turn the paths into a lane graph, score it.
 
 Writes RUN_DIR/predictions.parquet (the `graphs` table schema of docs/DATA.md, the format `cli score`
-reads) and RUN_DIR/metrics.json: the TOPO scores plus the parameter count, the frame rates (network
-only, and with the model's post-processing to a lane graph), the device, the config and, unless
-`floor=False`, the sensor-blind floor and the model's margin over it (baselines/floor.py).
+reads; its metadata records the target parameters the run was trained on) and RUN_DIR/metrics.json: the
+TOPO scores plus the parameter count, the frame rates (network only, and with the model's
+post-processing to a lane graph), the device, the training's effective batch size, the config and,
+unless `floor=False`, the sensor-blind floor and the model's margin over it (baselines/floor.py). Both
+are written at the end, atomically: a failed evaluation leaves the earlier ones as they were.
+
+A dataset prepared with other target parameters than the run's training data is refused (stale data),
+and so is a damaged checkpoint or one that would need unpickling (baselines/train.py load_checkpoint).
 """
 
 from __future__ import annotations
 
 import json
-import pickle
 import time
 from contextlib import nullcontext
 from pathlib import Path
@@ -26,9 +30,16 @@ from baselines.config import Config
 from baselines.data import PreparedDataset, collate
 from baselines.floor import blind_floor, floor_margins
 from baselines.models import Built, build
-from baselines.train import amp_settings
+from baselines.train import CHECKPOINT, amp_settings, load_checkpoint
 from benchmark.metrics import MetricParams
-from benchmark.score import default_range, graphs_from_table, read_graph_table, score_pairs
+from benchmark.score import (
+    TARGETS_KEY,
+    check_targets,
+    default_range,
+    graphs_from_table,
+    read_graph_table,
+    score_pairs,
+)
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
 
@@ -37,14 +48,8 @@ def load_model(run_dir: Path, device: torch.device) -> tuple[Built, Config]:
     """The run's model (in eval mode on `device`) with its post-processing, and the run's config."""
     config = Config.load(run_dir / "config.json")
     built = build(config)
-    path = run_dir / "checkpoint.pt"
-    try:  # weights_only: a checkpoint from elsewhere cannot run code
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as error:
-        raise ValueError(
-            f"{path}: refused: it holds objects other than tensors and plain values, which are never "
-            "unpickled (runs trained before 2026-12-01 stored numpy state: retrain)"
-        ) from error
+    path = run_dir / CHECKPOINT
+    checkpoint = load_checkpoint(path)  # weights_only, checksum: a file from elsewhere cannot run code
     try:
         built.model.load_state_dict(checkpoint["model"])
     except RuntimeError as error:  # other weight names or shapes: another model or an older version
@@ -93,10 +98,11 @@ def evaluate(
     model = built.model
     if config.train.threads and device_.type == "cpu":
         torch.set_num_threads(config.train.threads)
-    if data_dir is None:
-        data_dir = Path(json.loads((run_dir / "run.json").read_text())["data"])
+    run = json.loads((run_dir / "run.json").read_text())
+    data_dir = Path(data_dir or run["data"])
+    check_targets(run.get("targets", {}), data_dir, f"the run {run_dir}")
     split = split or config.train.val_split
-    dataset = PreparedDataset(Path(data_dir), split, config, built.needs)
+    dataset = PreparedDataset(data_dir, split, config, built.needs)
     loader = DataLoader(dataset, batch_size=1, num_workers=config.data.num_workers, collate_fn=collate)
     autocast_dtype, _ = amp_settings(device_, config.train.amp)
     warmup_frames = min(warmup_frames, len(dataset) - 1)  # time at least one frame
@@ -126,13 +132,10 @@ def evaluate(
             total_seconds += done - start
         predictions[batch.frame_ids[0]] = graph
         rows.append(graph_row(batch.frame_ids[0], graph))
-    table = pa.Table.from_pylist(rows, io.SCHEMAS["graphs"])
-    pq.write_table(table, run_dir / "predictions.parquet")
-
     # `cli score` scores every frame of the ground truth; here only the frames of this split.
-    ground_truth = graphs_from_table(read_graph_table(Path(data_dir)), Path(data_dir))
+    ground_truth = graphs_from_table(read_graph_table(data_dir), data_dir)
     pairs = [(predictions[frame_id], ground_truth[frame_id]) for frame_id in sorted(predictions)]
-    metric_params = MetricParams(bev_range=default_range(Path(data_dir)))
+    metric_params = MetricParams(bev_range=default_range(data_dir))
     scores = score_pairs(pairs, metric_params)
     scores.update(pred=str(run_dir / "predictions.parquet"), gt=str(data_dir), frames_predicted=len(pairs))
     timed = len(dataset) - warmup_frames
@@ -151,15 +154,20 @@ def evaluate(
         "fps": timed / total_seconds if total_seconds else 0.0,
         "postprocess_ms": 1000 * (total_seconds - net_seconds) / timed if timed else 0.0,
         "device": torch.cuda.get_device_name(device_) if device_.type == "cuda" else "cpu",
+        "world_size": run.get("world_size", 1),  # the training's processes and batch over all of them
+        "effective_batch_size": run.get("effective_batch_size", config.train.batch_size),
     }
     if floor:
         in_train = pc.field("split") == config.train.train_split
-        train_ids = io.read_table(Path(data_dir), "frames", ["frame_id"], in_train)["frame_id"].to_pylist()
+        train_ids = io.read_table(data_dir, "frames", ["frame_id"], in_train)["frame_id"].to_pylist()
         metrics["floor"] = blind_floor(
             predictions, ground_truth, dataset.frames, train_ids, config.train.train_split, metric_params,
-            Path(data_dir) / "floor_cache",
+            data_dir / "floor_cache",
         )  # fmt: skip
         metrics["floor"]["margin"] = floor_margins(metrics) if metrics["floor"]["f1"] else None
     metrics["config"] = config.to_dict()
-    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    schema = io.SCHEMAS["graphs"].with_metadata({TARGETS_KEY: json.dumps(run.get("targets", {}))})
+    table = pa.Table.from_pylist(rows, schema)
+    io.write_atomic(run_dir / "predictions.parquet", lambda tmp: pq.write_table(table, tmp))
+    io.write_json(run_dir / "metrics.json", metrics)
     return metrics

@@ -1,15 +1,23 @@
 """One training loop for the baselines: CPU or CUDA (AMP), one process or DDP under `torchrun`.
 
-RUN_DIR gets config.json (the resolved config), run.json (data folder, world size), log.jsonl (one
-line per logged step) and checkpoint.pt (every epoch: model, optimiser, scheduler, scaler and every
-rank's RNG state, so that `resume=True` continues exactly where the run stopped).
+RUN_DIR gets config.json (the resolved config), run.json (data folder, processes, per-process and
+effective batch size, the dataset's target parameters), log.jsonl (one line per logged step; the losses
+are means over the processes) and checkpoint.pt (every epoch: model, optimiser, scheduler, scaler and
+every rank's RNG state, so that `resume=True` continues exactly where the run stopped). Only rank 0
+writes.
+
+Checkpoints are written atomically and carry the sha256 of their content; the one they replace is kept
+as checkpoint.prev.pt. They load with weights_only=True (a crafted file cannot run code), and a damaged
+one is never loaded: resume falls back to checkpoint.prev.pt, saying so in one line.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
+import pickle
 import random
 import time
 from contextlib import nullcontext
@@ -27,8 +35,11 @@ from torch.utils.data import DataLoader, DistributedSampler
 from baselines.config import Config
 from baselines.data import Batch, PreparedDataset, collate, dataset_range
 from baselines.models import build
+from benchmark.score import check_targets, dataset_targets
+from pipeline import io
 
 console = Console(stderr=True)
+CHECKPOINT, PREVIOUS = "checkpoint.pt", "checkpoint.prev.pt"
 
 
 def lr_factor(step: int, total_steps: int, config: Config) -> float:
@@ -83,10 +94,82 @@ def amp_settings(device: torch.device, enabled: bool) -> tuple[torch.dtype | Non
     return torch.float16, True
 
 
-def save_atomic(obj: object, path: Path) -> None:
+class CheckpointError(ValueError):
+    """A checkpoint that is missing, damaged or refused; the message names the file, in one line."""
+
+
+def content_digest(state: object) -> str:
+    """sha256 of a checkpoint's content: every tensor's dtype, shape and bytes, every plain value."""
+    digest = hashlib.sha256()
+
+    def feed(value: object) -> None:
+        if isinstance(value, torch.Tensor):
+            flat = value.detach().cpu().contiguous().reshape(-1)
+            digest.update(f"tensor {flat.dtype} {tuple(value.shape)};".encode())
+            digest.update(flat.view(torch.uint8).numpy())
+        elif isinstance(value, dict):
+            digest.update(f"dict {len(value)};".encode())
+            for key, item in value.items():
+                feed(key)
+                feed(item)
+        elif isinstance(value, list | tuple):
+            digest.update(f"list {len(value)};".encode())
+            for item in value:
+                feed(item)
+        else:
+            digest.update(f"{type(value).__name__} {value!r};".encode())
+
+    feed(state)
+    return digest.hexdigest()
+
+
+def save_checkpoint(state: dict, path: Path) -> None:
+    """`state` and its sha256 to `path`, atomically; the file it replaces becomes checkpoint.prev.pt."""
     tmp = path.with_name(f".{path.name}.tmp")
-    torch.save(obj, tmp)
+    torch.save({**state, "sha256": content_digest(state)}, tmp)
+    if path.exists():
+        os.replace(path, path.with_name(PREVIOUS))
     os.replace(tmp, path)
+
+
+def load_checkpoint(path: Path) -> dict:
+    """The content of a checkpoint written by save_checkpoint, on the CPU, once its sha256 matches.
+    weights_only=True: tensors and plain values only, so that a crafted file cannot run code."""
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such checkpoint")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as error:
+        needs = [line.strip() for line in str(error).splitlines() if "GLOBAL" in line]
+        raise CheckpointError(
+            f"{path}: refused: it holds objects other than tensors and plain values, which are never "
+            f"unpickled ({needs[0] if needs else 'not a plain checkpoint'})"
+        ) from error
+    except Exception as error:  # torch raises RuntimeError, EOFError, ... on a damaged file
+        first = str(error).splitlines()[0].split(". ")[0] if str(error) else type(error).__name__
+        raise CheckpointError(f"{path}: unreadable, truncated or not a checkpoint ({first})") from error
+    if not isinstance(checkpoint, dict) or "sha256" not in checkpoint:
+        raise CheckpointError(f"{path}: no checksum: not a checkpoint of this version of cli train")
+    if content_digest({k: v for k, v in checkpoint.items() if k != "sha256"}) != checkpoint["sha256"]:
+        raise CheckpointError(f"{path}: corrupted: its content does not match the sha256 stored in it")
+    return checkpoint
+
+
+def resume_checkpoint(out_dir: Path, master: bool) -> dict:
+    """checkpoint.pt, or checkpoint.prev.pt (said in one line) when checkpoint.pt is missing or damaged;
+    the damaged file is moved to checkpoint.bad.pt, so that the next save does not keep it as previous."""
+    try:
+        return load_checkpoint(out_dir / CHECKPOINT)
+    except CheckpointError as error:
+        if not (out_dir / PREVIOUS).is_file():
+            raise
+        checkpoint = load_checkpoint(out_dir / PREVIOUS)
+        if master:
+            notice = f"{error}; resuming from {PREVIOUS} (epoch {checkpoint['epoch']})"
+            console.print(notice, soft_wrap=True, markup=False, highlight=False)  # one line, as it is
+            if (out_dir / CHECKPOINT).exists():
+                os.replace(out_dir / CHECKPOINT, out_dir / "checkpoint.bad.pt")
+        return checkpoint
 
 
 def setup_process(config: Config) -> tuple[torch.device, int, int]:
@@ -163,11 +246,15 @@ class Trainer:
             "rng": rng_states,
             "config": config.to_dict(),
         }
-        save_atomic(checkpoint, path)
+        save_checkpoint(checkpoint, path)
 
-    def load(self, path: Path, rank: int) -> int:
-        """Restore the state of `path`; returns the epoch to start from."""
-        checkpoint = torch.load(path, map_location=self.device, weights_only=True)
+    def load(self, checkpoint: dict, rank: int) -> int:
+        """Restore the state of a loaded checkpoint; returns the epoch to start from."""
+        if len(checkpoint["rng"]) <= rank:
+            raise CheckpointError(
+                f"the checkpoint holds the RNG states of {len(checkpoint['rng'])} process(es): resume with "
+                "as many (torchrun --nproc_per_node)"
+            )
         self.model.load_state_dict(checkpoint["model"])
         self.optimizer.load_state_dict(checkpoint["optimizer"])
         self.scheduler.load_state_dict(checkpoint["scheduler"])
@@ -175,6 +262,21 @@ class Trainer:
         set_rng_state(checkpoint["rng"][rank])
         self.step = checkpoint["step"]
         return checkpoint["epoch"]
+
+
+def mean_losses(losses: dict[str, torch.Tensor], distributed: bool) -> dict[str, torch.Tensor]:
+    """The losses averaged over the processes (detached): with the normalisers summed over processes
+    (blocks.mean_over_processes), the loss of the whole batch, as one process would compute it."""
+    values = torch.stack([value.detach().float() for value in losses.values()])
+    if distributed:
+        dist.all_reduce(values)
+        values /= dist.get_world_size()
+    return dict(zip(losses, values, strict=True))
+
+
+def logged_lines(path: Path) -> list[str]:
+    """The complete lines of a log (a kill can cut the last one short)."""
+    return [line for line in path.read_text().splitlines(keepends=True) if line.endswith("\n")]
 
 
 def all_rng_states(distributed: bool) -> list[dict]:
@@ -234,17 +336,26 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
                       train_config.grad_clip)  # fmt: skip
 
     start_epoch = 0
-    checkpoint_path = out_dir / "checkpoint.pt"
-    if resume:
-        start_epoch = trainer.load(checkpoint_path, rank)
+    checkpoint_path = out_dir / CHECKPOINT
+    if resume:  # stale data: the dataset must have the targets the run was trained on
+        trained = json.loads((out_dir / "run.json").read_text()).get("targets", {})
+        check_targets(trained, data_dir, f"the run {out_dir}")
+        start_epoch = trainer.load(resume_checkpoint(out_dir, master), rank)
         if master:  # drop log lines of steps after the checkpoint (an interrupted epoch)
-            lines = (out_dir / "log.jsonl").read_text().splitlines()
-            kept = [line for line in lines if json.loads(line)["step"] <= trainer.step]
-            (out_dir / "log.jsonl").write_text("".join(line + "\n" for line in kept))
+            lines = logged_lines(out_dir / "log.jsonl")
+            kept = "".join(line for line in lines if json.loads(line)["step"] <= trainer.step)
+            io.write_atomic(out_dir / "log.jsonl", lambda tmp: tmp.write_text(kept))
     elif master:
         out_dir.mkdir(parents=True, exist_ok=True)
         config.save(out_dir / "config.json")
-        run = {"data": str(data_dir.resolve()), "world_size": world_size, "device": device.type}
+        run = {
+            "data": str(data_dir.resolve()),
+            "world_size": world_size,
+            "batch_per_process": train_config.batch_size // world_size,
+            "effective_batch_size": train_config.batch_size,  # processes x per-process batch
+            "device": device.type,
+            "targets": dataset_targets(data_dir),  # cli eval / score / train --resume compare them
+        }
         (out_dir / "run.json").write_text(json.dumps(run, indent=2) + "\n")
         (out_dir / "log.jsonl").write_text("")
     if master:
@@ -276,6 +387,7 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
             epoch_start = last = time.perf_counter()
             for batch in loader:  # the step time below includes the wait for data
                 losses, grad_norm = trainer.train_step(batch)
+                losses = mean_losses(losses, distributed)
                 now = time.perf_counter()
                 train_seconds += now - last
                 last = now

@@ -25,6 +25,11 @@ from pipeline.lane_graph import LaneGraph
 # that a prediction shifted by exactly 0.45 m or a reach of exactly 50 steps of 0.15 m has one answer.
 EPS = 1e-9
 
+# The metric's version, recorded in every result JSON (`cli score`, `cli eval`, `cli roundtrip`): bump it
+# whenever a change can move any digit of a score, so that published numbers stay comparable
+# (tests/test_faults.py holds golden values that fail until it is bumped).
+METRIC_VERSION = 1
+
 
 @dataclass(frozen=True)
 class MetricParams:

@@ -3,6 +3,12 @@
 A graph table has one row per frame: `frame_id: string, x: list<float32>, y: list<float32>,
 src: list<int32>, dst: list<int32>` (docs/DATA.md). The ground truth is the `graphs` table of a
 prepared dataset (a folder) or one such file; predictions are one file (or a folder of shards).
+A frame of the ground truth without a prediction row is scored as an empty prediction; a predicted
+frame id that is not in the ground truth is refused (a typo or another dataset, never silently dropped).
+
+Stale data is refused: predictions written by `cli eval` record the target parameters of the dataset
+their model was trained on (TARGETS_KEY in the Parquet metadata), and a prepared ground truth made with
+other ones is an error naming the parameter.
 """
 
 from __future__ import annotations
@@ -16,10 +22,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as ds
 
-from benchmark.metrics import MetricParams, Totals
+from benchmark.metrics import METRIC_VERSION, MetricParams, Totals
+from pipeline import io
 from pipeline.lane_graph import LaneGraph
 
 COLUMNS = ("frame_id", "x", "y", "src", "dst")
+# What defines a prepared dataset's targets: manifest.json "parameters" and its schema_version.
+TARGET_PARAMETERS = ("bev_range", "path_points", "piece_points", "max_paths", "resolution", "line_width")
+TARGETS_KEY = b"lanegraph_targets"  # Parquet metadata of predictions: the targets their model trained on
 
 
 class GraphTableError(ValueError):
@@ -129,13 +139,38 @@ def score_pairs(pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, 
     totals = Totals(params)
     if workers <= 1 or len(pairs) < 2 * workers:
         totals.add(_score_chunk(pairs, params))
-        return totals.result()
-    size = max(1, min(64, len(pairs) // (4 * workers)))
-    chunks = [pairs[i : i + size] for i in range(0, len(pairs), size)]
-    with ProcessPoolExecutor(workers) as pool:
-        for part in pool.map(_score_chunk, chunks, [params] * len(chunks)):
-            totals.add(part)  # exact sums: the chunking does not change a digit
-    return totals.result()
+    else:
+        size = max(1, min(64, len(pairs) // (4 * workers)))
+        chunks = [pairs[i : i + size] for i in range(0, len(pairs), size)]
+        with ProcessPoolExecutor(workers) as pool:
+            for part in pool.map(_score_chunk, chunks, [params] * len(chunks)):
+                totals.add(part)  # exact sums: the chunking does not change a digit
+    return {**totals.result(), "metric_version": METRIC_VERSION}
+
+
+def dataset_targets(data: Path) -> dict:
+    """The target parameters of a prepared dataset (its manifest.json); {} for a graph-table file or a
+    folder without manifest."""
+    path = Path(data) / "manifest.json"
+    if not path.is_file():
+        return {}
+    manifest = json.loads(path.read_text())
+    parameters = manifest.get("parameters", {})
+    targets = {key: parameters[key] for key in TARGET_PARAMETERS if key in parameters}
+    if "schema_version" in manifest:
+        targets["schema_version"] = manifest["schema_version"]
+    return targets
+
+
+def check_targets(trained: dict, data: Path, what: str) -> None:
+    """Refuse a prepared dataset whose target parameters differ from those `what` was trained on."""
+    current = dataset_targets(data)
+    for key, value in trained.items():
+        if key in current and current[key] != value:
+            raise ValueError(
+                f"{Path(data) / 'manifest.json'}: stale data: prepared with {key}={current[key]!r}, but "
+                f"{what} was trained on {key}={value!r}; use a dataset prepared with the same options"
+            )
 
 
 def default_range(gt_path: Path) -> str:
@@ -147,21 +182,23 @@ def default_range(gt_path: Path) -> str:
 
 
 def write_result(result: dict, out: Path | None) -> None:
-    if out is not None:
-        out = Path(out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(result, indent=2) + "\n")
+    if out is not None:  # atomic: a failed run leaves an earlier file as it was
+        io.write_json(Path(out), result)
 
 
 def score(pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, **params) -> dict:
     """Score a prediction graph table against the ground truth; params are MetricParams fields.
 
-    Every ground-truth frame is scored; one with no prediction row counts as an empty prediction.
+    Every ground-truth frame is scored; one with no prediction row counts as an empty prediction, a
+    predicted frame that is not in the ground truth is refused.
     """
     params.setdefault("bev_range", default_range(gt_path))
     metric_params = MetricParams(**params)
+    pred_table = read_graph_table(pred_path)
+    trained = json.loads((pred_table.schema.metadata or {}).get(TARGETS_KEY, b"{}"))
+    check_targets(trained, Path(gt_path), f"the model of {pred_path}")
     gt = graphs_from_table(read_graph_table(gt_path), Path(gt_path))
-    pred = graphs_from_table(read_graph_table(pred_path), Path(pred_path))
+    pred = graphs_from_table(pred_table, Path(pred_path))
     unknown = sorted(set(pred) - set(gt))
     if unknown:
         raise GraphTableError(f"{pred_path}: frame {unknown[0]} is not in the ground truth {gt_path}")

@@ -149,7 +149,12 @@ def read_table(out: Path, table: str, columns: list[str] | None = None, filter=N
     # the unified schema would read a column a shard lacks as nulls, and cast one of another type:
     # refuse such shards instead
     for fragment in dataset.get_fragments():
-        physical = fragment.physical_schema
+        try:
+            physical = fragment.physical_schema
+        except pa.ArrowInvalid as error:
+            raise DataError(
+                fragment.path, "Parquet footer", "unreadable: truncated or not Parquet"
+            ) from error
         for name in columns or SCHEMAS[table].names:
             if name not in physical.names:
                 problem = "missing: prepared by an older version; re-run `cli prepare` with --overwrite"

@@ -221,6 +221,27 @@ def eval_(
         typer.echo(f"floor without {name}: {reason}")
 
 
+def print_scores(result: dict, title: str, as_json: bool) -> None:
+    """A score result: its JSON (--json, for scripts) or a short table of P / R / F1 and mIoU."""
+    if as_json:
+        import json
+
+        typer.echo(json.dumps(result, indent=2))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{title} ({result['frames']} frames, metric_version {result['metric_version']})")
+    for column in ("", "precision", "recall", "F1"):
+        table.add_column(column)
+    for mode in ("directed", "undirected"):
+        for name, metric in (("TOPO", "topo"), ("Junction TOPO", "junction_topo")):
+            values = result[mode][metric]
+            table.add_row(f"{mode} {name}", *(f"{values[k]:.3f}" for k in ("precision", "recall", "f1")))
+    table.add_row("mIoU", "", "", f"{result['miou']:.3f}")
+    Console().print(table)
+
+
 @app.command()
 def score(
     pred: Path = typer.Option(
@@ -229,7 +250,8 @@ def score(
         "without a row is scored as an empty prediction; a frame id not in the ground truth is refused",
     ),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset or a graph-table file"),
-    out: Path = typer.Option(None, help="Also write the JSON to this file"),
+    out: Path = typer.Option(None, help="Write the JSON (scores, thresholds, metric_version) to this file"),
+    as_json: bool = typer.Option(False, "--json", help="Print the JSON instead of the table (for scripts)"),
     step: float = typer.Option(0.15, help="Densification step, metres"),
     match_radius: float = typer.Option(0.45, help="Vertices closer than this may be paired, metres"),
     reach_radius: float = typer.Option(7.5, help="Reach: path distance below this, metres"),
@@ -240,8 +262,6 @@ def score(
     """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md);
     the JSON records the thresholds and metric_version. Predictions of `cli eval` made by a model trained
     on other target parameters than the ground truth's are refused (stale data)."""
-    import json
-
     from benchmark.score import score as run_score
 
     params = dict(step=step, match_radius=match_radius, reach_radius=reach_radius, matching=matching)
@@ -249,26 +269,25 @@ def score(
         params["bev_range"] = range_
     with reported_errors():
         result = run_score(pred, gt, out, workers=workers, **params)
-    typer.echo(json.dumps(result, indent=2))
+    print_scores(result, f"{pred} against {gt}", as_json)
 
 
 @app.command()
 def roundtrip(
     data: Path = typer.Option(..., help="Prepared dataset (cli prepare --out)"),
     via: str = typer.Option(..., help="path (Path2Graph), piece (Piece2Graph) or pixel (Pixel2Graph)"),
-    out: Path = typer.Option(None, help="Also write the JSON to this file"),
+    out: Path = typer.Option(None, help="Write the JSON (scores, thresholds, metric_version) to this file"),
+    as_json: bool = typer.Option(False, "--json", help="Print the JSON instead of the table (for scripts)"),
     merge_radius: float = typer.Option(0.0, help="Path2Graph's near merge in metres (0: identical points)"),
     frame_stride: int = typer.Option(1, help="Every K-th frame"),
     workers: int = typer.Option(1, help="Worker processes (0: one per core)"),
 ) -> None:
     """The ground truth through a representation and back, scored against itself (Tab. 10)."""
-    import json
-
     from benchmark.roundtrip import roundtrip as run_roundtrip
 
     with reported_errors():
         result = run_roundtrip(data, via, out, merge_radius, workers, frame_stride)
-    typer.echo(json.dumps(result, indent=2))
+    print_scores(result, f"{data} through {via} and back", as_json)
 
 
 @app.command()

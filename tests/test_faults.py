@@ -286,7 +286,8 @@ def test_stale_data_is_refused_by_name(toy_run, tmp_path):
     (other / "manifest.json").write_text(json.dumps({**manifest, "schema_version": 3}))
     one_error_line(cli("score", "--pred", predictions, "--gt", other), "schema_version=3")
     (other / "manifest.json").write_text(json.dumps(manifest))
-    assert json.loads(cli("score", "--pred", predictions, "--gt", other).stdout)["metric_version"] == 1
+    scored = cli("score", "--pred", predictions, "--gt", other, "--json")
+    assert json.loads(scored.stdout)["metric_version"] == 1
 
 
 def test_bad_training_inputs_are_named_in_one_line(toy_run, tmp_path):

@@ -136,6 +136,11 @@ def test_cli_score_prints_and_writes_the_json(gt_file, tmp_path):
     out = tmp_path / "m.json"
     run = CliRunner().invoke(app, ["score", "--pred", str(gt_file), "--gt", str(gt_file), "--out", str(out)])
     assert run.exit_code == 0, run.output
+    lines = run.stdout.splitlines()
+    assert len(lines) < 15 and any("directed Junction TOPO" in line for line in lines)
+    topo_f1 = json.loads(out.read_text())["directed"]["topo"]["f1"]
+    assert [line for line in lines if "directed TOPO" in line][0].split()[-2] == f"{topo_f1:.3f}"
+    run = CliRunner().invoke(app, ["score", "--pred", str(gt_file), "--gt", str(gt_file), "--json"])
     assert json.loads(run.stdout) == json.loads(out.read_text())
     bad = write(tmp_path / "bad.parquet", [row("f/nope", LANE)])
     run = CliRunner().invoke(app, ["score", "--pred", str(bad), "--gt", str(gt_file)])

@@ -49,7 +49,7 @@ out = Path(tempfile.mkdtemp())
 t = time.perf_counter()
 if {executor!r} == "ray":  # started here so that its start is timed apart; prepare uses it as it is
     import ray
-    ray.init(num_cpus={workers}, log_to_driver=False)
+    ray.init("local", num_cpus={workers}, log_to_driver=False)
 start = time.perf_counter() - t
 t = time.perf_counter()
 summary = prepare("av2", Path({str(root)!r}), out, TargetOptions(), workers={workers}, executor={executor!r})
@@ -59,9 +59,9 @@ peak = max(usage)
 print(json.dumps({{"frames": summary["frames"], "seconds": elapsed, "start": start, "peak_mib": peak / 1024,
                   "worker_mib": summary["peak_worker_mib"]}}))
 """
-    result = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO, check=True
-    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
+    if result.returncode:
+        sys.exit(f"the {executor} run with {workers} workers failed:\n{result.stderr[-4000:]}")
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 

@@ -64,9 +64,9 @@ def run_ray(
     A Ray already initialised by the caller is used as it is and left running."""
     ray = import_ray()
     started = not ray.is_initialized()
-    if started:
+    if started:  # "local": a new instance, even where a `ray start` cluster runs on this machine
         cpus = None if address else max(workers, 1)
-        ray.init(address=address, num_cpus=cpus, log_to_driver=False, logging_level=logging.WARNING)
+        ray.init(address or "local", num_cpus=cpus, log_to_driver=False, logging_level=logging.WARNING)
     try:
         task = ray.remote(num_cpus=1)(prepare_log_task)
         refs = [task.remote(job, out, options, frame_stride, on_error) for job in jobs]

@@ -71,7 +71,7 @@ def test_ray_writes_the_local_bytes(raw, tmp_path, dataset):
 def ray_instance():
     """A local instance started here: the executor uses it as it is and leaves it running."""
     ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, log_to_driver=False)
+    ray.init("local", num_cpus=2, log_to_driver=False)
     yield ray
     ray.shutdown()
 

@@ -63,6 +63,13 @@ class EncoderConfig:
         (x0, x1), (y0, y1) = self.x_range, self.y_range
         return _stack(x0 + uv[..., 0] * (x1 - x0), y1 - uv[..., 1] * (y1 - y0), uv)
 
+    def polyline_to_metres(self, uv: np.ndarray) -> np.ndarray:
+        """A predicted (n, 2) unit polyline -> float64 metres inside the map: the decoders regress a
+        little beyond the map's edge (so that lanes reach it), and the ground truth stops there."""
+        inside = np.clip(np.asarray(uv, np.float64), 0.0, 1.0)
+        moved = np.r_[True, np.any(inside[1:] != inside[:-1], axis=1)]  # points clipped onto one spot
+        return self.unit_to_metres(inside[moved])
+
 
 def _stack(a: Any, b: Any, like: Any) -> Any:
     # The same arithmetic serves numpy arrays (data, evaluation) and tensors (model).

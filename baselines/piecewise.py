@@ -11,7 +11,6 @@ pairs' association logits against the prepared `piece_links`.
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -192,7 +191,7 @@ class PiecePostProcess:
         graphs = []
         for frame_scores, frame_points, frame_links in zip(scores, points, links, strict=True):
             keep = (frame_scores > self.threshold).nonzero().squeeze(1)
-            pieces = [self.encoder.unit_to_metres(p.numpy().astype(np.float64)) for p in frame_points[keep]]
+            pieces = [self.encoder.polyline_to_metres(p.numpy()) for p in frame_points[keep]]
             pairs = (frame_links[keep][:, keep] > self.link_threshold).nonzero().numpy()
             graphs.append(piece2graph(pieces, pairs))
         return graphs

@@ -192,13 +192,21 @@ def setup_process(config: Config) -> tuple[torch.device, int, int]:
 
 
 def use_dataset_range(config: Config, data_dir: Path, master: bool) -> None:
-    """The BEV grid covers what the dataset was cropped to (its cells grow or shrink with it)."""
+    """The BEV grid covers what the dataset was cropped to, at the preset's cell size (the tiny
+    preset's 40 x 20 cells of 1.5 m over 30 x 60 m become 67 x 33 over 50 x 100 m)."""
     crop = dataset_range(data_dir)
-    if crop is not None and (tuple(config.encoder.x_range), tuple(config.encoder.y_range)) != crop:
-        if master:
-            Console().print(f"BEV range from the dataset: x {crop[0]}, y {crop[1]} m (the preset had "
-                            f"x {config.encoder.x_range}, y {config.encoder.y_range})")  # fmt: skip
-        config.encoder.x_range, config.encoder.y_range = crop
+    encoder = config.encoder
+    if crop is None or (tuple(encoder.x_range), tuple(encoder.y_range)) == crop:
+        return
+    (x0, x1), (y0, y1) = encoder.x_range, encoder.y_range
+    cell_w, cell_h = (x1 - x0) / encoder.bev_w, (y1 - y0) / encoder.bev_h
+    (new_x0, new_x1), (new_y0, new_y1) = crop
+    bev_w, bev_h = max(1, round((new_x1 - new_x0) / cell_w)), max(1, round((new_y1 - new_y0) / cell_h))
+    if master:
+        Console().print(f"BEV grid from the dataset: x {crop[0]}, y {crop[1]} m in {bev_h} x {bev_w} cells "
+                        f"(the preset had x {encoder.x_range}, y {encoder.y_range} in {encoder.bev_h} x "
+                        f"{encoder.bev_w})")  # fmt: skip
+    encoder.x_range, encoder.y_range, encoder.bev_w, encoder.bev_h = crop[0], crop[1], bev_w, bev_h
 
 
 @dataclass

@@ -224,3 +224,8 @@ def test_pooled_targets_keep_the_lanes_and_their_directions():
     assert torch.allclose(vectors[0, :, 22:38, 5], torch.tensor([[0.0], [1.0]]).expand(2, 16), atol=0.09)
     with pytest.raises(ValueError, match="whole multiple"):
         pooled_targets(mask, direction, (30, 15))
+    # a range of no whole number of output cells (50 x 100 m: 667 x 333 rasters, 334 x 167 outputs):
+    # the last row and column reach past it, with no lane
+    cut, _ = pooled_targets(mask[:, :79, :39], direction[:, :79, :39], (40, 20))
+    padded = F.pad(mask[:, None, :79, :39].float(), (0, 1, 0, 1))
+    assert cut.shape == (1, 40, 20) and torch.equal(cut, F.max_pool2d(padded, 2)[:, 0].long())

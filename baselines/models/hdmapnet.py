@@ -18,6 +18,7 @@ in image coordinates, where rows run down and so flip the sign of the y componen
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,9 +76,12 @@ def head(preset: str) -> HDMapNetConfig:
 
 
 def raster_shape(config: Config) -> tuple[int, int]:
-    """(rows, columns) of the output: the prepared raster grid of the encoder's range."""
+    """(rows, columns) of the output: cells of decoder.resolution from the front-left corner of the
+    encoder's range, enough to cover it (50 x 100 m in 0.3 m cells: 334 x 167, the last row and column
+    reaching past the range, as the prepared 0.15 m raster's 667 x 333 padded to 668 x 334)."""
     (x0, x1), (y0, y1) = config.encoder.x_range, config.encoder.y_range
-    return Grid(Range(x0, x1, y0, y1), config.decoder.resolution).shape
+    resolution = config.decoder.resolution
+    return math.ceil(round((y1 - y0) / resolution, 6)), math.ceil(round((x1 - x0) / resolution, 6))
 
 
 class Up(nn.Module):
@@ -168,12 +172,15 @@ def pooled_targets(
     (lane mask (B, h, w) long: any lane cell inside, unit direction (B, 2, h, w): the mean of the lane
     cells' directions, zero off the lanes)."""
     rows, cols = mask.shape[-2:]
-    k = rows // size[0]
-    if (rows, cols) != (k * size[0], k * size[1]):
+    k = -(-rows // size[0])
+    pad_rows, pad_cols = k * size[0] - rows, k * size[1] - cols
+    if not (0 <= pad_rows < k and 0 <= pad_cols < k):
         raise ValueError(
             f"the prepared rasters are {rows} x {cols} cells, not a whole multiple of the model's output "
             f"{size[0]} x {size[1]}: set decoder.resolution to the rasters' resolution or a multiple of it"
         )
+    # a range that is not a whole number of output cells: the last ones reach past it, with no lane
+    mask, bins = (F.pad(t, (0, pad_cols, 0, pad_rows)) for t in (mask, bins))
     vectors = direction_targets(bins, direction_bins)
     if k == 1:
         return mask.long(), vectors

@@ -9,7 +9,6 @@ metres, through Path2Graph.
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -121,7 +120,7 @@ class PostProcess:
 
     def __call__(self, outputs: dict[str, torch.Tensor]) -> list[LaneGraph]:
         return [
-            path2graph([self.encoder.unit_to_metres(p.numpy().astype(np.float64)) for p in points])
+            path2graph([self.encoder.polyline_to_metres(p.numpy()) for p in points])
             for _, points in select_paths(outputs, self.threshold)
         ]
 

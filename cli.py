@@ -145,6 +145,7 @@ def train(
     pretrained: Path = typer.Option(None, help="Local torchvision ResNet state_dict file for the backbone"),
     set_: list[str] = typer.Option([], "--set", help="Any config field: section.field=value (repeatable)"),
     resume: bool = typer.Option(False, help="Continue the run in --out from its last checkpoint"),
+    overwrite: bool = typer.Option(False, help="Start afresh in an --out that holds a run (else refused)"),
     stop_after: int = typer.Option(0, help="End this run after that many epochs (0: all); --resume goes on"),
 ) -> None:
     """Train a baseline on a prepared dataset; DDP when started by torchrun
@@ -167,7 +168,7 @@ def train(
                                     aux_seg, weights, set_, model)  # fmt: skip
         if data is None:
             raise ValueError("--data is required")
-        summary = run_train(config, data, out, resume=resume, stop_after=stop_after)
+        summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite)
     typer.echo(json.dumps(summary))
 
 

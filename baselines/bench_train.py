@@ -55,7 +55,7 @@ def main() -> None:
             run = args.out / f"{model}_tiny_{modality}"
             config = resolve_config("tiny", modality=modality, epochs=args.epochs, model=model)
             start = time.perf_counter()
-            summary = train(config, data, run)
+            summary = train(config, data, run, overwrite=True)
             metrics = evaluate(run, data, "val", device="cpu")
             row = {"model": model, "modality": modality, "epochs": args.epochs}
             names = {"junction_topo": "J-TOPO", "topo": "TOPO"}

@@ -295,13 +295,19 @@ def all_rng_states(distributed: bool) -> list[dict]:
     return states
 
 
-def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, stop_after: int = 0) -> dict:
+def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, stop_after: int = 0,
+          overwrite: bool = False) -> dict:  # fmt: skip
     """Train `config` on the prepared dataset `data_dir`; returns a summary (loss, steps/s, seconds).
 
     resume: continue from out_dir/checkpoint.pt. stop_after: end this run after that many epochs
     (0: run to config.train.epochs), e.g. to fit a time-limited job; a later resume carries on.
+    overwrite: start afresh in a folder that holds a run (refused otherwise: its checkpoint and log
+    would be replaced).
     """
     data_dir, out_dir = Path(data_dir), Path(out_dir)
+    if not resume and not overwrite and (out_dir / "config.json").exists():
+        raise ValueError(f"{out_dir} holds a run already: continue it with --resume, start it afresh with "
+                         "--overwrite, or choose another --out")  # fmt: skip
     device, rank, world_size = setup_process(config)
     distributed, master, train_config = world_size > 1, rank == 0, config.train
     use_dataset_range(config, data_dir, master)

@@ -23,14 +23,11 @@ from baselines.config import Config
 from baselines.encoder import SensorBatch
 from pipeline.io import decode_raster, read_table
 
-IMAGENET_MEAN = np.array([123.675, 116.28, 103.53], np.float32)  # torchvision's, RGB 0..255
-IMAGENET_STD = np.array([58.395, 57.12, 57.375], np.float32)
-
 
 @dataclass
 class Sample:
     frame_id: str
-    images: np.ndarray | None  # (Ncam, 3, H, W) float32 normalised, padded
+    images: np.ndarray | None  # (Ncam, 3, H, W) uint8 RGB, zero-padded (the model normalises)
     intrinsics: np.ndarray | None  # (Ncam, 3, 3)
     sensor_to_ego: np.ndarray | None  # (Ncam, 4, 4)
     image_sizes: np.ndarray | None  # (Ncam, 2) height, width before padding
@@ -55,7 +52,7 @@ def resample_polyline(xy: np.ndarray, n: int) -> np.ndarray:
 
 
 def read_image(path: Path, scale: float, width: int, height: int) -> tuple[np.ndarray, float, float]:
-    """RGB float32 image of the camera of calibrated size `width` x `height`, resized by `scale`;
+    """RGB uint8 image (H, W, 3) of the camera of calibrated size `width` x `height`, resized by `scale`;
     returns it with the exact x / y scale factors."""
     # JPEG decodes at 1/2, 1/4 or 1/8 size directly, several times faster than a full decode: use
     # the smallest one still at least as large as the target.
@@ -70,7 +67,7 @@ def read_image(path: Path, scale: float, width: int, height: int) -> tuple[np.nd
     new_w, new_h = max(1, round(width * scale)), max(1, round(height * scale))
     if (new_w, new_h) != (image.shape[1], image.shape[0]):
         image = cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_AREA)
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB).astype(np.float32), new_w / width, new_h / height
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB), new_w / width, new_h / height
 
 
 def scaled_intrinsics(intrinsics: np.ndarray, scale_x: float, scale_y: float) -> np.ndarray:
@@ -241,7 +238,7 @@ class PreparedDataset(torch.utils.data.Dataset):
         for camera in cameras:
             path = self.sensor_root / camera["image_path"]
             image, scale_x, scale_y = read_image(path, scale, camera["width"], camera["height"])
-            images.append((image - IMAGENET_MEAN) / IMAGENET_STD)
+            images.append(image)
             k = np.array(camera["intrinsics"], np.float64).reshape(3, 3)
             intrinsics.append(scaled_intrinsics(k, scale_x, scale_y))
             extrinsics.append(np.array(camera["sensor_to_ego"], np.float64).reshape(4, 4))
@@ -250,8 +247,9 @@ class PreparedDataset(torch.utils.data.Dataset):
         height = -(-max(s[0] for s in sizes) // divisor) * divisor
         width = -(-max(s[1] for s in sizes) // divisor) * divisor
         # AV2's front camera is portrait, the others landscape: pad all to one size (bottom / right,
-        # which leaves the pixel coordinates and so the intrinsics unchanged).
-        padded = np.zeros((len(images), 3, height, width), np.float32)
+        # which leaves the pixel coordinates and so the intrinsics unchanged). uint8 until the model:
+        # a quarter of the bytes to convert, copy to the main process and move to the GPU.
+        padded = np.zeros((len(images), 3, height, width), np.uint8)
         for i, image in enumerate(images):
             padded[i, :, : image.shape[0], : image.shape[1]] = image.transpose(2, 0, 1)
         sample.images = padded
@@ -314,7 +312,7 @@ def collate(samples: list[Sample]) -> Batch:
     if samples[0].images is not None:
         height = max(s.images.shape[2] for s in samples)
         width = max(s.images.shape[3] for s in samples)
-        images = np.zeros((len(samples), samples[0].images.shape[0], 3, height, width), np.float32)
+        images = np.zeros((len(samples), samples[0].images.shape[0], 3, height, width), np.uint8)
         for i, s in enumerate(samples):
             images[i, :, :, : s.images.shape[2], : s.images.shape[3]] = s.images
         sensors.images = torch.from_numpy(images)

@@ -24,12 +24,16 @@ from baselines.blocks import FeedForward
 from baselines.config import EncoderConfig
 from baselines.resnet import build_resnet
 
+IMAGENET_MEAN = (123.675, 116.28, 103.53)  # torchvision's, RGB 0..255
+IMAGENET_STD = (58.395, 57.12, 57.375)
+
 
 @dataclass
 class SensorBatch:
     """Model input. Camera fields are None for LiDAR-only runs and vice versa."""
 
-    images: torch.Tensor | None = None  # (B, Ncam, 3, H, W) normalised, zero-padded bottom / right
+    # (B, Ncam, 3, H, W) zero-padded bottom / right: uint8 RGB as loaded, or float already normalised
+    images: torch.Tensor | None = None
     intrinsics: torch.Tensor | None = None  # (B, Ncam, 3, 3) of the resized images
     sensor_to_ego: torch.Tensor | None = None  # (B, Ncam, 4, 4) camera frame -> BEV frame
     image_sizes: torch.Tensor | None = None  # (B, Ncam, 2) height, width of each image before padding
@@ -47,6 +51,19 @@ class SensorBatch:
     @property
     def batch_size(self) -> int:
         return (self.images if self.images is not None else self.points).shape[0]
+
+    def normalised_images(self) -> torch.Tensor:
+        """Images normalised by ImageNet's mean and std (torchvision's), zero in the padding. The loader
+        hands over uint8: normalising here runs on the model's device, not in the loader's workers."""
+        if self.images.dtype != torch.uint8:
+            return self.images
+        mean = torch.tensor(IMAGENET_MEAN, device=self.images.device).view(3, 1, 1)
+        std = torch.tensor(IMAGENET_STD, device=self.images.device).view(3, 1, 1)
+        height, width = self.images.shape[-2:]
+        rows = torch.arange(height, device=self.images.device) < self.image_sizes[..., 0:1]  # (B, Ncam, H)
+        cols = torch.arange(width, device=self.images.device) < self.image_sizes[..., 1:2]  # (B, Ncam, W)
+        inside = (rows[..., :, None] & cols[..., None, :]).unsqueeze(2)  # (B, Ncam, 1, H, W)
+        return ((self.images.float() - mean) / std) * inside
 
     def ground(self) -> torch.Tensor:
         """(B,) ground_z, zeros where it is not given."""
@@ -286,7 +303,7 @@ class CameraEncoder(nn.Module):
 
     def forward(self, batch: SensorBatch) -> torch.Tensor:
         config = self.config
-        images = batch.images
+        images = batch.normalised_images()
         num_batch, cameras = images.shape[:2]
         features = self.neck(self.backbone(images.flatten(0, 1)))
         features = features.view(num_batch, cameras, *features.shape[1:])

@@ -13,7 +13,7 @@ import torch
 from test_synth import painted_lines
 
 from baselines.config import tiny
-from baselines.data import IMAGENET_MEAN, IMAGENET_STD, PreparedDataset
+from baselines.data import PreparedDataset
 from baselines.encoder import above_ground_to_bev, project_points
 from pipeline.io import read_table
 from pipeline.synth.world import build_world
@@ -42,7 +42,7 @@ def grey_levels(sample, points: np.ndarray) -> np.ndarray:
     )
     levels = []
     for camera, image in enumerate(sample.images):
-        rgb = image.transpose(1, 2, 0) * IMAGENET_STD + IMAGENET_MEAN
+        rgb = image.transpose(1, 2, 0).astype(np.float64)
         distance = np.linalg.norm(points - sample.sensor_to_ego[camera, :3, 3], axis=1)
         seen = visible[0, camera].numpy() & (distance > 3) & (distance < 20)
         uv = np.round(pixels[0, camera, seen].numpy()).astype(int)

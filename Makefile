@@ -35,6 +35,7 @@ test-learning: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmark/bench_prepare.py
 	$(PY) benchmark/bench_metrics.py
+	$(PY) benchmark/bench_loader.py
 
 bench-train: $(STAMP)
 	$(PY) baselines/bench_train.py

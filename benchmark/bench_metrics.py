@@ -2,7 +2,8 @@
 
 Scores 6,019 frames (the size of the nuScenes val set): the prepared synthetic and real AV2 ground
 truth, repeated, against realistic predictions (the ground truth with 0.1 m noise on every vertex
-and one edge in ten dropped). Then times Path2Graph on the paths of the same frames.
+and one edge in ten dropped). Then `cli score` on the same 6,019 frames written as graph tables, in its own
+process, for its peak memory (resident set), and Path2Graph on the paths of the same frames.
 
     .venv/bin/python benchmark/bench_metrics.py [--data DIR ...] [--frames 6019] [--workers 2]
 
@@ -13,6 +14,7 @@ when they are there, in a temporary folder.
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 import tempfile
 import time
@@ -26,6 +28,7 @@ from benchmark.metrics import MetricParams  # noqa: E402
 from benchmark.path2graph import path2graph  # noqa: E402
 from benchmark.roundtrip import polylines_by_frame  # noqa: E402
 from benchmark.score import graphs_from_table, score_pairs  # noqa: E402
+from pipeline import io  # noqa: E402
 from pipeline.io import read_table  # noqa: E402
 from pipeline.lane_graph import LaneGraph  # noqa: E402
 
@@ -50,6 +53,38 @@ def noisy(g: LaneGraph, rng: np.random.Generator) -> LaneGraph:
     keep = rng.random(len(g.src)) >= 0.1
     dx, dy = rng.normal(0.0, 0.1, (2, len(g.x))).astype(np.float32)
     return LaneGraph(g.x + dx, g.y + dy, g.src[keep], g.dst[keep])
+
+
+def cli_score_peak_mib(pairs: list[tuple[LaneGraph, LaneGraph]], folder: Path) -> tuple[float, float]:
+    """Write the pairs as prediction and ground-truth graph tables, run `cli score` on them in a child
+    process; returns (its peak resident memory in MiB, the two tables' size on disk in MiB)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from baselines.evaluate import graph_row
+
+    files = []
+    for name, side in (("pred", 0), ("gt", 1)):
+        rows = [graph_row(f"frame{i:05d}", pair[side]) for i, pair in enumerate(pairs)]
+        files.append(folder / f"{name}.parquet")
+        pq.write_table(pa.Table.from_pylist(rows, io.SCHEMAS["graphs"]), files[-1])
+    command = [
+        str(Path(sys.executable).parent / "cli"),
+        "score",
+        "--pred",
+        str(files[0]),
+        "--gt",
+        str(files[1]),
+    ]
+    # A fresh parent whose only child is `cli score`: this process's own children (the metric's worker
+    # pool, forked from a process holding all frames) would count in RUSAGE_CHILDREN.
+    measure = (
+        "import resource, subprocess, sys; subprocess.run(sys.argv[1:], check=True, capture_output=True); "
+        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)"
+    )
+    peak_kib = subprocess.run([sys.executable, "-c", measure, *command], check=True, capture_output=True,
+                              text=True).stdout  # fmt: skip
+    return int(peak_kib) / 1024, sum(f.stat().st_size for f in files) / 2**20
 
 
 def main() -> None:
@@ -89,6 +124,10 @@ def main() -> None:
             + (f" ({1e3 * cpu / count:.2f} ms of CPU)" if workers == 1 else "")
             + f", directed TOPO F1 {result['directed']['topo']['f1']:.4f}"
         )
+
+    with tempfile.TemporaryDirectory() as tmp:
+        peak, size = cli_score_peak_mib(pairs, Path(tmp))
+    print(f"cli score, {len(pairs)} frames ({size:.0f} MiB of Parquet): peak memory {peak:.0f} MiB")
 
     path2graph(paths[0])
     for merge_radius in (0.15, 0.0):

@@ -4,9 +4,12 @@
    segment into k = ceil(L / step) equal parts, computed by the metric's own densification kernel.
    Paths that share a segment therefore give the very same floats, and so does the ground truth.
 2. Points at identical coordinates are one vertex.
-3. Vertices of different paths closer than merge_radius are merged, nearest pairs first, into one
-   vertex at their mean that inherits all their predecessors and successors; a merged vertex never
-   takes two vertices of the same path. "Different paths" means different connected pieces after
+3. Vertices of different paths closer than merge_radius and running the same way (their chains'
+   directions within MERGE_MAX_ANGLE) are merged, nearest pairs first, into one vertex at their mean
+   that inherits all their predecessors and successors; a merged vertex never takes two vertices of
+   the same path. Lanes that cross pass within merge_radius too: merging them would join two lanes
+   that never meet (directed TOPO F1 of 20-point ground-truth paths with 0.01-0.3 m of noise: +0.04 to
+   +0.06 with the direction check). "Different paths" means different connected pieces after
    step 2: paths that already share a vertex meet where they truly meet, and merging their nearby
    vertices would only blur a fork or a merge.
 4. Self-loops and repeated edges are dropped.
@@ -23,6 +26,8 @@ import numpy as np
 from benchmark.metrics import EPS, identical_points, near_pairs, split_into_parts, ties_by_key
 from pipeline.lane_graph import LaneGraph
 
+MERGE_MAX_ANGLE = 45.0  # degrees between two vertices' directions for step 3 to merge them
+
 
 @numba.njit(cache=True)
 def _find(parent, i):
@@ -33,7 +38,7 @@ def _find(parent, i):
 
 
 @numba.njit(cache=True)
-def _cluster(points, vertex, n, chain_src, chain_dst, radius, eps):
+def _cluster(points, vertex, n, chain_src, chain_dst, radius, eps, direction, min_cos):
     """Step 3: the cluster (a step-2 vertex) of each step-2 vertex."""
     # the connected pieces that the chains form over the step-2 vertices
     piece = np.arange(n)
@@ -52,6 +57,9 @@ def _cluster(points, vertex, n, chain_src, chain_dst, radius, eps):
     count, pair_b, dist = near_pairs(xy, xy, radius, eps, piece, piece)
     pair_a = np.repeat(np.arange(n), count)
     near = np.flatnonzero(pair_a < pair_b)
+    a, b = pair_a[near], pair_b[near]
+    same_way = direction[a, 0] * direction[b, 0] + direction[a, 1] * direction[b, 1] > min_cos
+    near = near[same_way]
     near = near[ties_by_key(np.argsort(dist[near]), dist[near], pair_a[near] * n + pair_b[near])]
     # nearest pairs first; a cluster's members form a linked list from its root, to check that no
     # cluster ever holds two vertices of one piece
@@ -119,7 +127,14 @@ def path2graph(paths: Sequence[np.ndarray], step: float = 0.15, merge_radius: fl
     segment = np.flatnonzero(path_of[:-1] == path_of[1:])  # segment i: point i -> point i + 1
     points, chain_src, chain_dst, _ = split_into_parts(xy, segment, segment + 1, step, EPS)
     vertex, n = identical_points(points)
-    cluster = _cluster(points, vertex, n, chain_src, chain_dst, merge_radius, EPS)
+    # each step-2 vertex's direction: that of the chain part leaving it, else of the one entering it
+    step_xy = points[chain_dst] - points[chain_src]
+    unit = step_xy / np.maximum(np.hypot(step_xy[:, 0], step_xy[:, 1]), 1e-12)[:, None]  # 0 on a repeat
+    direction = np.zeros((n, 2))
+    direction[vertex[chain_dst]] = unit
+    direction[vertex[chain_src]] = unit
+    min_cos = np.cos(np.radians(MERGE_MAX_ANGLE))
+    cluster = _cluster(points, vertex, n, chain_src, chain_dst, merge_radius, EPS, direction, min_cos)
     out, mean = _vertices(points, vertex, n, cluster)
     src, dst = out[vertex[chain_src]], out[vertex[chain_dst]]
     n_out = len(mean)

@@ -64,6 +64,19 @@ def test_noisy_fork_merges_its_trunk_and_splits_where_branches_part():
     assert 2.9 < g.y[fork] < 3.3
 
 
+def test_crossing_lanes_do_not_merge_where_they_cross():
+    # two paths of different pieces crossing at right angles: their vertices at the crossing are within
+    # merge_radius, but they run different ways (a junction's crossing lanes never meet)
+    across = np.array([(-3.0, 1.52), (3.0, 1.52)])  # 0.02 m from the trunk's vertex at y = 1.5
+    g = path2graph([TRUNK, across])
+    separate = path2graph([TRUNK, across], merge_radius=0.0)
+    assert len(g.x) == len(separate.x) == 21 + 41 and len(g.src) == 20 + 40
+    out_degree, in_degree = degrees(g)
+    assert out_degree.max() == in_degree.max() == 1
+    # the same two lanes nearly parallel (10 degrees apart) do merge where they are close
+    assert len(path2graph([TRUNK, np.array([(0.05, 0.0), (0.05 + 3 * np.tan(np.radians(10)), 3.0)])]).x) < 42
+
+
 def test_a_path_never_merges_with_itself_and_no_self_loops():
     u_turn = np.array([(0, 0), (0, 3), (0.1, 3), (0.1, 0)])  # its two sides 0.1 m apart
     g = path2graph([u_turn])

@@ -28,8 +28,7 @@ from benchmark.metrics import MetricParams  # noqa: E402
 from benchmark.path2graph import path2graph  # noqa: E402
 from benchmark.roundtrip import polylines_by_frame  # noqa: E402
 from benchmark.score import graphs_from_table, score_pairs  # noqa: E402
-from pipeline import io  # noqa: E402
-from pipeline.io import read_table  # noqa: E402
+from pipeline.io import SCHEMAS, read_table  # noqa: E402
 from pipeline.lane_graph import LaneGraph  # noqa: E402
 
 SHARED_AV2 = Path(__file__).resolve().parents[2] / "shared" / "data" / "av2" / "sensor"
@@ -67,15 +66,9 @@ def cli_score_peak_mib(pairs: list[tuple[LaneGraph, LaneGraph]], folder: Path) -
     for name, side in (("pred", 0), ("gt", 1)):
         rows = [graph_row(f"frame{i:05d}", pair[side]) for i, pair in enumerate(pairs)]
         files.append(folder / f"{name}.parquet")
-        pq.write_table(pa.Table.from_pylist(rows, io.SCHEMAS["graphs"]), files[-1])
-    command = [
-        str(Path(sys.executable).parent / "cli"),
-        "score",
-        "--pred",
-        str(files[0]),
-        "--gt",
-        str(files[1]),
-    ]
+        pq.write_table(pa.Table.from_pylist(rows, SCHEMAS["graphs"]), files[-1])
+    cli = str(Path(sys.executable).parent / "cli")
+    command = [cli, "score", "--pred", str(files[0]), "--gt", str(files[1])]
     # A fresh parent whose only child is `cli score`: this process's own children (the metric's worker
     # pool, forked from a process holding all frames) would count in RUSAGE_CHILDREN.
     measure = (

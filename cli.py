@@ -5,6 +5,7 @@ Heavy modules (torch, av2, nuscenes) are imported inside the commands so that `c
 
 from __future__ import annotations
 
+import os
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -169,7 +170,17 @@ def train(
         if data is None:
             raise ValueError("--data is required")
         summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite)
-    typer.echo(json.dumps(summary))
+    if os.environ.get("RANK", "0") != "0":
+        return  # under torchrun, rank 0 reports
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{config.model} ({config.preset}, {config.encoder.modality}) trained into {out}")
+    for column in ("steps", "final loss", "train seconds", "steps/s"):
+        table.add_column(column)
+    table.add_row(str(summary["steps"]), f"{summary['final_loss']:.4f}", f"{summary['train_seconds']:.1f}",
+                  f"{summary['steps_per_s']:.2f}")  # fmt: skip
+    Console().print(table)
 
 
 @app.command("eval")
@@ -182,8 +193,9 @@ def eval_(
         True, help="Also score the sensor-blind floor (other log's sensors, constant prior) and the margin"
     ),
 ) -> None:
-    """Predict a split, run Path2Graph, write predictions.parquet and metrics.json into the run folder;
-    a dataset prepared with other target parameters than the run's is refused (stale data)."""
+    """Predict a split, turn the outputs into lane graphs (the model's post-processing), write
+    predictions.parquet and metrics.json into the run folder; a dataset prepared with other target
+    parameters than the run's is refused (stale data)."""
     from rich.console import Console
     from rich.table import Table
 

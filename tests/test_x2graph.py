@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import networkx as nx
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from benchmark.metrics import MetricParams, densify, score_graphs
 from benchmark.path2graph import path2graph
@@ -144,6 +147,51 @@ def test_a_drawn_fork_comes_back_as_a_fork():
     result = score_graphs([(g, FORK)], MetricParams())
     assert result["directed"]["topo"]["f1"] > 0.8
     assert len(pixel2graph(np.zeros_like(mask), direction, RasterGrid()).x) == 0
+
+
+def lanes(*polylines: np.ndarray) -> LaneGraph:
+    """Each polyline a lane of its own (no shared vertices)."""
+    xy = np.concatenate(polylines).astype(np.float32)
+    starts = np.cumsum([0] + [len(p) for p in polylines])
+    src = np.concatenate([np.arange(a, b - 1) for a, b in zip(starts[:-1], starts[1:])]).astype(np.int32)
+    return LaneGraph(xy[:, 0], xy[:, 1], src, src + 1)
+
+
+def reaches(g: LaneGraph, a, b) -> bool:
+    """Whether the vertex nearest a leads to the vertex nearest b."""
+    nearest = [int(np.argmin(np.hypot(g.x - p[0], g.y - p[1]))) for p in (a, b)]
+    return nx.has_path(nx.DiGraph(list(zip(g.src.tolist(), g.dst.tolist()))), *nearest)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    angle=st.floats(60, 120),
+    cx=st.floats(-3, 3),
+    cy=st.floats(-10, 10),
+)
+def test_lanes_crossing_in_a_junction_do_not_join(angle, cx, cy):
+    # one skeleton junction (or two joined by a short piece, at shallow angles) where they cross;
+    # each lane goes on straight across it and never onto the other
+    centre = np.array([cx, cy])
+    along = 8 * np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle))])
+    a, b = np.array([centre - [8, 0], centre + [8, 0]]), np.array([centre - along, centre + along])
+    g = pixel2graph(*raster(lanes(a, b)), RasterGrid())
+    assert reaches(g, a[0], a[1]) and reaches(g, b[0], b[1])
+    assert not reaches(g, a[0], b[1]) and not reaches(g, b[0], a[1])
+
+
+@settings(max_examples=25, deadline=None)
+@given(x=st.floats(-5, 5), spread=st.floats(2, 5), below=st.floats(0.6, 1.2))
+def test_lanes_forking_just_outside_the_grid_both_point_their_own_way(x, spread, below):
+    # both lanes run up the grid from a fork below its edge; their lines touch on the edge, so the
+    # skeleton makes one branch that goes down one lane and up the other
+    fork = np.array([x, -30 - below])
+    left = np.array([fork, fork + [-spread, 8], fork + [-spread, 28]])
+    right = np.array([fork, fork + [spread, 8], fork + [spread, 28]])
+    g = pixel2graph(*raster(lanes(left, right)), RasterGrid())
+    dy = g.y[g.dst] - g.y[g.src]
+    assert np.hypot(g.x[g.dst] - g.x[g.src], dy).sum() > 2 * 25  # both lanes are there
+    assert -dy[dy < 0].sum() < 0.5  # and no part of either points down
 
 
 # ---------------------------------------------------------------------------------------------------

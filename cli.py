@@ -5,7 +5,6 @@ Heavy modules (torch, av2, nuscenes) are imported inside the commands so that `c
 
 from __future__ import annotations
 
-import os
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -170,17 +169,7 @@ def train(
         if data is None:
             raise ValueError("--data is required")
         summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite)
-    if os.environ.get("RANK", "0") != "0":
-        return  # under torchrun, rank 0 reports
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table(title=f"{config.model} ({config.preset}, {config.encoder.modality}) trained into {out}")
-    for column in ("steps", "final loss", "train seconds", "steps/s"):
-        table.add_column(column)
-    table.add_row(str(summary["steps"]), f"{summary['final_loss']:.4f}", f"{summary['train_seconds']:.1f}",
-                  f"{summary['steps_per_s']:.2f}")  # fmt: skip
-    Console().print(table)
+    typer.echo(json.dumps(summary))
 
 
 @app.command("eval")

@@ -5,6 +5,7 @@ If this cannot reach a learning check's bar, no encoder will help: the decoder, 
 is the limit.
 
     python -m baselines.decoder_oracle --data prepared [--preset tiny] [--steps 480] [--pool 4]
+        [--set decoder.proposals=true]
 """
 
 from __future__ import annotations
@@ -58,10 +59,11 @@ def main() -> None:
     parser.add_argument("--preset", default="tiny")
     parser.add_argument("--steps", type=int, default=480)
     parser.add_argument("--pool", type=int, default=4, help="raster cells (0.15 m) per oracle BEV cell side")
+    parser.add_argument("--set", action="append", default=[], help="config override, as `cli train --set`")
     args = parser.parse_args()
 
     torch.manual_seed(0)
-    config = resolve_config(args.preset, modality="lidar", overrides=["decoder.aux_seg=false"])
+    config = resolve_config(args.preset, modality="lidar", overrides=["decoder.aux_seg=false", *args.set])
     if config.train.threads:
         torch.set_num_threads(config.train.threads)
     rasters = {row["frame_id"]: row for row in read_table(args.data, "rasters").to_pylist()}

@@ -26,8 +26,6 @@ Pixel (r, c) has its centre at x = x_min + (c + 0.5) * res, y = y_max - (r + 0.5
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.sparse import coo_matrix
@@ -36,17 +34,9 @@ from skimage.measure import approximate_polygon
 from skimage.morphology import skeletonize
 
 from pipeline.lane_graph import LaneGraph
-from pipeline.raster import direction_vectors
+from pipeline.raster import Grid, direction_vectors
 
 NEIGHBOURS = [(-1, 0), (0, -1), (0, 1), (1, 0), (-1, -1), (-1, 1), (1, -1), (1, 1)]  # 4-neighbours first
-
-
-@dataclass(frozen=True)
-class RasterGrid:
-    x_min: float = -15.0
-    y_max: float = 30.0
-    resolution: float = 0.15
-    direction_bins: int = 36
 
 
 def skeleton_adjacency(skeleton: np.ndarray) -> tuple[np.ndarray, list[list[int]]]:
@@ -174,7 +164,7 @@ def join_close_junctions(
 def pixel2graph(
     mask: np.ndarray,
     direction: np.ndarray,
-    grid: RasterGrid = RasterGrid(),
+    grid: Grid,
     tolerance: float = 0.15,
     min_spur: int = 5,
     max_turn: float = 60.0,
@@ -185,8 +175,7 @@ def pixel2graph(
     if len(pixels) == 0:
         return LaneGraph.empty()
     node, branches = trace(neighbours)
-    res = grid.resolution
-    xy = np.stack([grid.x_min + (pixels[:, 1] + 0.5) * res, grid.y_max - (pixels[:, 0] + 0.5) * res], axis=1)
+    xy = grid.pixel_centres(pixels[:, 0], pixels[:, 1])
     pixel_vector = direction_vectors(grid.direction_bins)[np.asarray(direction)[pixels[:, 0], pixels[:, 1]]]
 
     # nodes: at the mean of their pixels

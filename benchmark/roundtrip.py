@@ -20,11 +20,12 @@ from pyarrow.dataset import field as ds_field
 from benchmark.metrics import MetricParams
 from benchmark.path2graph import path2graph
 from benchmark.piece2graph import piece2graph
-from benchmark.pixel2graph import RasterGrid, pixel2graph
+from benchmark.pixel2graph import pixel2graph
 from benchmark.score import default_range, graphs_from_table, score_pairs, write_result
 from pipeline.geometry import Range
 from pipeline.io import decode_raster, read_table
 from pipeline.lane_graph import LaneGraph
+from pipeline.raster import Grid
 
 VIAS = ("path", "piece", "pixel")
 
@@ -61,7 +62,7 @@ def rebuild(data: Path, via: str, frame_ids: list[str], merge_radius: float) -> 
         for row in read_table(data, "rasters", filter=wanted).to_pylist():
             mask, direction = decode_raster(row)
             # the table stores float32 (0.15000000596): the grid's own value places the pixels
-            grid = RasterGrid(crop.x_min, crop.y_max, round(float(row["resolution"]), 6))
+            grid = Grid(crop, round(float(row["resolution"]), 6))
             out[row["frame_id"]] = pixel2graph(mask, direction, grid)
         return {f: out.get(f, LaneGraph.empty()) for f in frame_ids}
     raise ValueError(f"via must be one of {', '.join(VIAS)}, not {via!r}")

@@ -42,6 +42,16 @@ class Grid:
             [(x - self.bev_range.x_min) / self.resolution, (self.bev_range.y_max - y) / self.resolution], -1
         )
 
+    def pixel_centres(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(n, 2) metres (x, y) of the centres of pixels (rows, cols): the inverse of `to_pixels`."""
+        return np.stack(
+            [
+                self.bev_range.x_min + (cols + 0.5) * self.resolution,
+                self.bev_range.y_max - (rows + 0.5) * self.resolution,
+            ],
+            axis=1,
+        )
+
     def direction_bin(self, dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
         """1 + floor(theta / bin width) for theta = atan2(dy, dx) in [0, 360) degrees."""
         theta = np.degrees(np.arctan2(dy, dx)) % 360.0

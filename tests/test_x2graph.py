@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from benchmark.metrics import MetricParams, densify, score_graphs
 from benchmark.path2graph import path2graph
 from benchmark.piece2graph import piece2graph
-from benchmark.pixel2graph import RasterGrid, pixel2graph
+from benchmark.pixel2graph import pixel2graph
 from benchmark.roundtrip import roundtrip
 from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
@@ -121,32 +121,41 @@ def raster(graph: LaneGraph) -> tuple[np.ndarray, np.ndarray]:
     return rasterize(graph, Grid(Range()))
 
 
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 399), st.integers(0, 199), st.sampled_from([0.15, 0.3, 0.6]))
+def test_pixel_centres_are_where_to_pixels_puts_them(row, col, resolution):
+    # one grid object places pixels both ways: Pixel2Graph's vertices, the rasters' drawing
+    grid = Grid(Range(-15.0, 15.0, -30.0, 30.0), resolution)
+    xy = grid.pixel_centres(np.array([row]), np.array([col]))
+    np.testing.assert_allclose(grid.to_pixels(xy[:, 0], xy[:, 1]), [[col + 0.5, row + 0.5]], atol=1e-9)
+
+
 def test_a_drawn_lane_comes_back_pointing_the_way_of_the_direction_map():
     lane = LaneGraph(
         np.array([0, 0], np.float32), np.array([-10, 10], np.float32), np.array([0]), np.array([1])
     )
     mask, direction = raster(lane)
-    g = pixel2graph(mask, direction, RasterGrid())
+    g = pixel2graph(mask, direction, Grid(Range()))
     dy = g.y[g.dst] - g.y[g.src]
     assert len(g.src) >= 1 and np.all(dy > 0)
     assert g.y.min() == pytest.approx(-10, abs=0.5) and g.y.max() == pytest.approx(10, abs=0.5)
     np.testing.assert_allclose(g.x, 0, atol=0.3)  # the thinning may end a pixel or two aside
     # the same mask with the direction map turned around
     flipped = np.where(direction > 0, (direction - 1 + 18) % 36 + 1, 0).astype(np.uint8)
-    back = pixel2graph(mask, flipped, RasterGrid())
+    back = pixel2graph(mask, flipped, Grid(Range()))
     assert np.all(back.y[back.dst] < back.y[back.src])
 
 
 def test_a_drawn_fork_comes_back_as_a_fork():
     mask, direction = raster(FORK)
-    g = pixel2graph(mask, direction, RasterGrid())
+    g = pixel2graph(mask, direction, Grid(Range()))
     out_degree, in_degree = degrees(g)
     assert (out_degree == 2).sum() == 1 and in_degree.max() == 1
     fork = np.flatnonzero(out_degree == 2)[0]
     assert np.hypot(g.x[fork], g.y[fork] - 3) < 1.5  # where the two 0.75 m wide strokes part
     result = score_graphs([(g, FORK)], MetricParams())
     assert result["directed"]["topo"]["f1"] > 0.8
-    assert len(pixel2graph(np.zeros_like(mask), direction, RasterGrid()).x) == 0
+    assert len(pixel2graph(np.zeros_like(mask), direction, Grid(Range())).x) == 0
 
 
 def lanes(*polylines: np.ndarray) -> LaneGraph:
@@ -175,7 +184,7 @@ def test_lanes_crossing_in_a_junction_do_not_join(angle, cx, cy):
     centre = np.array([cx, cy])
     along = 8 * np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle))])
     a, b = np.array([centre - [8, 0], centre + [8, 0]]), np.array([centre - along, centre + along])
-    g = pixel2graph(*raster(lanes(a, b)), RasterGrid())
+    g = pixel2graph(*raster(lanes(a, b)), Grid(Range()))
     assert reaches(g, a[0], a[1]) and reaches(g, b[0], b[1])
     assert not reaches(g, a[0], b[1]) and not reaches(g, b[0], a[1])
 
@@ -188,7 +197,7 @@ def test_lanes_forking_just_outside_the_grid_both_point_their_own_way(x, spread,
     fork = np.array([x, -30 - below])
     left = np.array([fork, fork + [-spread, 8], fork + [-spread, 28]])
     right = np.array([fork, fork + [spread, 8], fork + [spread, 28]])
-    g = pixel2graph(*raster(lanes(left, right)), RasterGrid())
+    g = pixel2graph(*raster(lanes(left, right)), Grid(Range()))
     dy = g.y[g.dst] - g.y[g.src]
     assert np.hypot(g.x[g.dst] - g.x[g.src], dy).sum() > 2 * 25  # both lanes are there
     assert -dy[dy < 0].sum() < 0.5  # and no part of either points down

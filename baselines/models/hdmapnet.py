@@ -31,7 +31,7 @@ from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
 from baselines.models import Built, preset_head
 from baselines.resnet import resnet18
-from benchmark.pixel2graph import RasterGrid, pixel2graph
+from benchmark.pixel2graph import pixel2graph
 from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
 from pipeline.raster import Grid, direction_vectors
@@ -222,9 +222,8 @@ class PostProcess:
         self.threshold = head.score_threshold
         # Pixel2Graph reads a map of direction bins (the prepared rasters' format): the predicted vectors
         # are binned as the rasters were, by the raster grid's own rule (at most half a bin, 5 degrees, off).
-        self.bins = Grid(Range(), head.resolution, direction_bins=head.direction_bins)
-        (x0, _), (_, y1) = config.encoder.x_range, config.encoder.y_range
-        self.grid = RasterGrid(x0, y1, head.resolution, head.direction_bins)
+        (x0, x1), (y0, y1) = config.encoder.x_range, config.encoder.y_range
+        self.grid = Grid(Range(x0, x1, y0, y1), head.resolution, direction_bins=head.direction_bins)
 
     @torch.no_grad()
     def __call__(self, outputs: dict[str, torch.Tensor]) -> list[LaneGraph]:
@@ -232,7 +231,7 @@ class PostProcess:
         directions = outputs["direction"].float().cpu().numpy()
         graphs = []
         for mask, (dx, dy) in zip(masks, directions, strict=True):
-            bins = np.where(mask, self.bins.direction_bin(dx, dy), 0).astype(np.uint8)
+            bins = np.where(mask, self.grid.direction_bin(dx, dy), 0).astype(np.uint8)
             graphs.append(pixel2graph(mask, bins, self.grid))
         return graphs
 

@@ -161,37 +161,13 @@ def join_close_junctions(
     return kept, joined_xy, np.bincount(junction, degree)
 
 
-def pixel2graph(
-    mask: np.ndarray,
-    direction: np.ndarray,
-    grid: Grid,
-    tolerance: float = 0.15,
-    min_spur: int = 5,
-    max_turn: float = 60.0,
-    heading_pixels: int = 10,
-) -> LaneGraph:
-    skeleton = skeletonize(np.asarray(mask) > 0)
-    pixels, neighbours = skeleton_adjacency(skeleton)
-    if len(pixels) == 0:
-        return LaneGraph.empty()
-    node, branches = trace(neighbours)
-    xy = grid.pixel_centres(pixels[:, 0], pixels[:, 1])
-    pixel_vector = direction_vectors(grid.direction_bins)[np.asarray(direction)[pixels[:, 0], pixels[:, 1]]]
-
-    # nodes: at the mean of their pixels
-    node_ids, node_of = np.unique(node[node >= 0], return_inverse=True)
-    node_xy = np.stack([np.bincount(node_of, xy[node >= 0, i]) for i in (0, 1)], axis=1)
-    node_xy /= np.bincount(node_of)[:, None]
-    vertex_of_node = dict(zip(node_ids.tolist(), range(len(node_ids))))
-    degree = np.zeros(len(node_ids), np.int64)
-    for b in branches:
-        degree[vertex_of_node[node[b[0]]]] += 1
-        degree[vertex_of_node[node[b[-1]]]] += 1
-
-    # oriented branches: (start node, end node, pixel polyline from node pixel to node pixel); a
-    # branch is cut where the direction map turns against it (two lanes whose lines touch at their
-    # ends, e.g. where they fork just outside the grid, make one skeleton branch with two directions)
-    extra: list[np.ndarray] = []  # nodes made by those cuts, numbered after node_xy's
+def oriented_branches(branches, node, xy, pixel_vector, vertex_of_node, degree, n_nodes, min_spur,
+                      heading_pixels):  # fmt: skip
+    """(start node, end node, pixel polyline from node pixel to node pixel) of every branch but short
+    spurs off a junction, oriented by the direction map, and the nodes the cuts make (numbered from
+    n_nodes). A branch is cut where the direction map turns against it: two lanes whose lines touch at
+    their ends, e.g. where they fork just outside the grid, make one skeleton branch with two directions."""
+    extra: list[np.ndarray] = []
     lines: list[tuple[int, int, np.ndarray]] = []
     for b in branches:
         ends = (vertex_of_node[node[b[0]]], vertex_of_node[node[b[-1]]])
@@ -201,38 +177,43 @@ def pixel2graph(
         line = xy[b]
         agree = np.sum(np.gradient(line, axis=0) * pixel_vector[b], axis=1)
         cuts = direction_runs(agree, heading_pixels)
-        stops = [ends[0]] + [len(node_xy) + len(extra) + i for i in range(len(cuts) - 2)] + [ends[1]]
+        stops = [ends[0]] + [n_nodes + len(extra) + i for i in range(len(cuts) - 2)] + [ends[1]]
         extra += [line[c] for c in cuts[1:-1]]
         for i, (u, w) in enumerate(zip(cuts[:-1], cuts[1:])):
             part, a, z = line[u : w + 1], stops[i], stops[i + 1]
             if np.sum(agree[u : w + 1]) < 0:  # the direction map says the other way
                 part, a, z = part[::-1], z, a
             lines.append((a, z, part))
-    node_xy = np.concatenate([node_xy, np.reshape(extra, (-1, 2))])
-    degree = np.concatenate([degree, np.full(len(extra), 2)])
+    return lines, np.reshape(extra, (-1, 2))
 
-    lines, node_xy, degree = join_close_junctions(lines, node_xy, degree, heading_pixels)
 
-    # At a node, lanes that cross in a junction meet as well as lanes that fork or merge; a single
-    # vertex would let every lane coming in go on along every lane going out. Where some of those
-    # turns are too sharp to be one lane, each branch ends on its own vertex next to the node and
-    # edges join only the turns a lane can take.
+def junction_turns(lines, n_nodes, max_turn, heading_pixels):
+    """Per node the branches coming in and going out, and for the nodes to split, the allowed (in, out)
+    turns. At a node, lanes that cross in a junction meet as well as lanes that fork or merge; a single
+    vertex would let every lane coming in go on along every lane going out. Where some of those turns
+    are too sharp to be one lane, each branch ends on its own vertex next to the node and edges join
+    only the turns a lane can take."""
     leaving = [headings(line, heading_pixels) for _, _, line in lines]
-    ins: list[list[int]] = [[] for _ in node_xy]
-    outs: list[list[int]] = [[] for _ in node_xy]
+    ins: list[list[int]] = [[] for _ in range(n_nodes)]
+    outs: list[list[int]] = [[] for _ in range(n_nodes)]
     for k, (start, end, _) in enumerate(lines):
         outs[start].append(k)
         ins[end].append(k)
-    points: list[np.ndarray] = [node_xy]
-    n_vertices = len(node_xy)
-    split: dict[int, np.ndarray] = {}  # node -> allowed (in, out) turns, for nodes that are split
-    for v in range(len(node_xy)):
+    split: dict[int, np.ndarray] = {}
+    for v in range(n_nodes):
         into = np.array([leaving[k][1] for k in ins[v]]).reshape(-1, 2)
         out = np.array([leaving[k][0] for k in outs[v]]).reshape(-1, 2)
         ok = turns_allowed(into, out, max_turn)
         if not ok.all():
             split[v] = ok
+    return ins, outs, split
 
+
+def lane_graph(lines, node_xy, degree, ins, outs, split, tolerance) -> LaneGraph:
+    """The graph: every branch simplified to within `tolerance`, from its node's vertex (its own vertex
+    next to a split node) to the next; a split node's turns as edges."""
+    points: list[np.ndarray] = [node_xy]
+    n_vertices = len(node_xy)
     edges: list[tuple[int, int]] = []
     first_vertex, last_vertex = {}, {}
     for k, (start, end, line) in enumerate(lines):
@@ -268,3 +249,39 @@ def pixel2graph(
     renumber = np.cumsum(used) - 1
     xy_out, e = xy_out[used], renumber[e]
     return LaneGraph(xy_out[:, 0], xy_out[:, 1], e[:, 0].astype(np.int32), e[:, 1].astype(np.int32))
+
+
+def pixel2graph(
+    mask: np.ndarray,
+    direction: np.ndarray,
+    grid: Grid,
+    tolerance: float = 0.15,
+    min_spur: int = 5,
+    max_turn: float = 60.0,
+    heading_pixels: int = 10,
+) -> LaneGraph:
+    skeleton = skeletonize(np.asarray(mask) > 0)
+    pixels, neighbours = skeleton_adjacency(skeleton)
+    if len(pixels) == 0:
+        return LaneGraph.empty()
+    node, branches = trace(neighbours)
+    xy = grid.pixel_centres(pixels[:, 0], pixels[:, 1])
+    pixel_vector = direction_vectors(grid.direction_bins)[np.asarray(direction)[pixels[:, 0], pixels[:, 1]]]
+
+    # nodes: at the mean of their pixels
+    node_ids, node_of = np.unique(node[node >= 0], return_inverse=True)
+    node_xy = np.stack([np.bincount(node_of, xy[node >= 0, i]) for i in (0, 1)], axis=1)
+    node_xy /= np.bincount(node_of)[:, None]
+    vertex_of_node = dict(zip(node_ids.tolist(), range(len(node_ids))))
+    degree = np.zeros(len(node_ids), np.int64)
+    for b in branches:
+        degree[vertex_of_node[node[b[0]]]] += 1
+        degree[vertex_of_node[node[b[-1]]]] += 1
+
+    lines, cut_xy = oriented_branches(branches, node, xy, pixel_vector, vertex_of_node, degree, len(node_xy),
+                                      min_spur, heading_pixels)  # fmt: skip
+    node_xy = np.concatenate([node_xy, cut_xy])
+    degree = np.concatenate([degree, np.full(len(cut_xy), 2)])
+    lines, node_xy, degree = join_close_junctions(lines, node_xy, degree, heading_pixels)
+    ins, outs, split = junction_turns(lines, len(node_xy), max_turn, heading_pixels)
+    return lane_graph(lines, node_xy, degree, ins, outs, split, tolerance)

@@ -5,6 +5,7 @@ Heavy modules (torch, av2, nuscenes) are imported inside the commands so that `c
 
 from __future__ import annotations
 
+import os
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -147,11 +148,12 @@ def train(
     resume: bool = typer.Option(False, help="Continue the run in --out from its last checkpoint"),
     overwrite: bool = typer.Option(False, help="Start afresh in an --out that holds a run (else refused)"),
     stop_after: int = typer.Option(0, help="End this run after that many epochs (0: all); --resume goes on"),
+    json_: bool = typer.Option(False, "--json", help="Print the summary as one JSON line (every process)"),
 ) -> None:
     """Train a baseline on a prepared dataset; DDP when started by torchrun
     (`torchrun --nproc_per_node N -m cli train ...`: --batch-size is over all N processes). --resume
     refuses a dataset prepared with other target parameters, and falls back to checkpoint.prev.pt when
-    checkpoint.pt is damaged."""
+    checkpoint.pt is damaged. Ends with a summary table (rank 0), or with --json a JSON line per process."""
     import json
 
     from baselines.config import Config, apply_overrides, resolve_config
@@ -169,7 +171,20 @@ def train(
         if data is None:
             raise ValueError("--data is required")
         summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite)
-    typer.echo(json.dumps(summary))
+    if json_:
+        typer.echo(json.dumps(summary))
+        return
+    if os.environ.get("RANK", "0") != "0":
+        return  # under torchrun, rank 0 reports
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{config.model} ({config.preset}, {config.encoder.modality}) trained into {out}")
+    for column in ("steps", "final loss", "train seconds", "steps/s"):
+        table.add_column(column)
+    table.add_row(str(summary["steps"]), f"{summary['final_loss']:.4f}", f"{summary['train_seconds']:.1f}",
+                  f"{summary['steps_per_s']:.2f}")  # fmt: skip
+    Console().print(table)
 
 
 @app.command("eval")

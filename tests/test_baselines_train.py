@@ -46,6 +46,7 @@ def cli_train_toy(data: Path, run: Path) -> None:
             "--set", "train.threads=1", "--set", "train.val_split=train"]  # fmt: skip
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
+    assert "final loss" in result.output and "{" not in result.output  # a summary table, not raw JSON
 
 
 def write_toy_dataset(root: Path, frames: int = 6, split: str = "train") -> Path:

@@ -53,7 +53,7 @@ def toy_with_one_sweep(root: Path) -> tuple[Path, list[int]]:
 def test_torchrun_two_processes_match_one_process(tmp_path):
     data, lanes = toy_with_one_sweep(tmp_path)
     run = tmp_path / "ddp"
-    args = ["--data", str(data), "--out", str(run), *TINY.split()]
+    args = ["--data", str(data), "--out", str(run), *TINY.split(), "--json"]  # a summary line per process
     torchrun = [str(Path(sys.executable).with_name("torchrun")), "--standalone", "--nproc_per_node", "2"]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     done = subprocess.run([*torchrun, "-m", "cli", "train", *args], cwd=REPO, env=env, capture_output=True,

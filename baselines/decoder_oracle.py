@@ -5,7 +5,7 @@ If this cannot reach a learning check's bar, no encoder will help: the decoder, 
 is the limit.
 
     python -m baselines.decoder_oracle --data prepared [--preset tiny] [--steps 480] [--pool 4]
-        [--set decoder.proposals=true]
+        [--set decoder.layers=6]
 """
 
 from __future__ import annotations

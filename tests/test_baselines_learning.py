@@ -70,6 +70,9 @@ CHECKS = [
 # (P 0.76, R 0.24), with 60,000 LiDAR points 0.355 / 0.275: its lane mask holds the ego's lane and the
 # one to its left in every frame and none further out. With images twice as large (data.image_scale_av2=1.0,
 # 767 s) its lanes follow more of the road, but it fits the training worlds: train 0.452, val 0.171 / 0.203.
+# With those images AND twice the data (synth frames_per_log=40: 320 training frames; 12 epochs = 960
+# steps, 1,611 s) HDMapNet reads its sensors: val 0.451 / 0.514, floor 0.307 / 0.287, margins +0.144 /
+# +0.227 (the first run above the floor by about the margins; the time is 4.5x the budget).
 # The bars are the learning-check issue's; do not lower them.
 
 

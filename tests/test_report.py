@@ -264,7 +264,11 @@ def panel_counts(path: Path) -> tuple[int, int]:
     background = np.all(np.abs(pixels - 247) <= 1, axis=2)
 
     def runs(mask: np.ndarray) -> int:
-        return int(np.count_nonzero(np.diff(np.concatenate([[0], mask.astype(int)])) == 1))
+        # a lane drawn along a whole panel leaves a line of a few pixels without background: runs
+        # closer than the margin between two panels are one panel
+        starts = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(int)])) == 1)
+        ends = np.flatnonzero(np.diff(np.concatenate([mask.astype(int), [0]])) == -1)
+        return 1 + int(np.count_nonzero(starts[1:] - ends[:-1] > 6)) if len(starts) else 0
 
     return runs(background.sum(axis=1) > 20), runs(background.sum(axis=0) > 20)
 

@@ -16,7 +16,8 @@ A world (metres; x east, y north; shifted to positive map coordinates at the end
 
 A draw whose roads overlap (other than where they join) is drawn again from the same generator.
 Routes are random walks through the lane graph around a focus (a turn, the ring, the ramp, the bend,
-any lane of any road in either direction), so that the ego drives in every lane.
+a lane with another of its direction on its right, in either direction), so that the ego drives in
+every lane, and not only in the outer one where the ramps and the right turns start.
 """
 
 from __future__ import annotations
@@ -325,12 +326,23 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
         return lane, tuple(float(v) for v in path.at(path.length / 2)[0, :2])
 
     plain = [i for i, lane in net.lanes.items() if not lane.is_intersection]
+
+    def has_lane_on_right(lane: int) -> bool:
+        return net.lanes[lane].right_neighbor is not None
+
+    # "road" and "junction_straight" routes start in a lane with another of its direction on its right
+    # where the world has one: the other routes start where ramps and right turns do, in the outer lane.
+    inner = [i for i in plain if has_lane_on_right(i)] or plain
+    straight_from_inner = [
+        i for i in junction["straight"] if any(map(has_lane_on_right, net.lanes[i].predecessors))
+    ] or junction["straight"]
+
     # the outer forward lane segment that the S-bend view stands on
     view_xy = np.array([reentering_view.x, reentering_view.y])
     ego_lane = min(
         stem.forward[-1], key=lambda i: np.hypot(*(net.lanes[i].centerline()[:, :2] - view_xy).T).min()
     )
-    foci = {  # the hard cases first: a dataset of few logs still sees them
+    foci = {  # the kinds of ROUTE_KINDS
         "roundabout": [(street.forward[0][-1], (view.x, view.y))],
         "fork": [(ramp[0], tuple(float(v) for v in net.lanes[fork_lane].path.end.xy))],
         "s_bend": [(ego_lane, (reentering_view.x, reentering_view.y))],
@@ -339,8 +351,8 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
         "t_junction_turn": [middle(i) for i in t_turns["left"] + t_turns["right"]],
         "merge": [(merge_lane, tuple(float(v) for v in net.lanes[merge_lane].path.start.xy))],
         "curve": [middle(i) for i in curve],
-        "road": [middle(i) for i in plain],
-        "junction_straight": [middle(i) for i in junction["straight"]],
+        "road": [middle(i) for i in inner],
+        "junction_straight": [middle(i) for i in straight_from_inner],
         "roundabout_through": [middle(i) for i in ring.entries],
     }
     kerbs = [(road, -1, "cars") for road in cross_roads + roundabout_arms[:1]]
@@ -400,12 +412,19 @@ def _world(seed: int, index: int, parts: _Parts, rng: np.random.Generator) -> Wo
 ROUTE_LENGTH_M = 260.0  # enough for 20 frames 1 s apart at 12 m/s, plus the lead car's gap
 
 
+# The kinds of route in the order that logs drive them (log i drives route i): the hard cases first, so
+# that a dataset of a few logs still meets them, with routes from inner lanes among them, so that
+# training and validation (the last two of the default 10 logs: a junction from an inner lane and the
+# ring) both meet an ego with a lane of its direction on its right.
+ROUTE_KINDS = ("roundabout", "fork", "s_bend", "road", "junction_left", "junction_right", "t_junction_turn",
+               "junction_straight", "junction_straight", "roundabout_through", "merge", "curve", "road")  # fmt: skip
+
+
 def _routes(net: Network, foci: dict[str, list], rng: np.random.Generator) -> list[Route]:
-    """Two rounds of one route per kind of focus, in the order of `foci` (log i of a dataset drives
-    route i, so that consecutive logs see different hard cases): each a random walk through a random
-    focus lane of its kind (backwards and forwards, no lane twice)."""
+    """Two rounds of ROUTE_KINDS: each a random walk through a random focus lane of its kind (backwards
+    and forwards, no lane twice)."""
     routes = []
-    for kind in list(foci) * 2:
+    for kind in ROUTE_KINDS * 2:
         lane, focus = foci[kind][int(rng.integers(len(foci[kind])))]
         routes.append(Route(kind, _walk(net, lane, rng), focus, float(rng.uniform(6.0, 12.0))))
     return routes

@@ -39,7 +39,7 @@ CHECKS = [
 # - HDMapNet fusion 0.363 / 0.305, margins +0.040 / +0.037 (559 s: 0.94 steps/s);
 # - MapTR fusion 0.057 / 0.072 (387 s); STSU fusion 0.158 / 0.177 (305 s).
 # HDMapNet underfits rather than overfits: on the training frames 0.399 / 0.274 (validation 0.365 /
-# 0.355, an earlier draw of the same split); a third of the ground-truth lane length has no prediction
+# 0.355, on an earlier version of this split); a third of the ground-truth lane length has no prediction
 # within 2 m. Neither its post-processing (thresholds 0.3-0.5, hysteresis, smoothing, bridging gaps up to
 # 8 m along the direction: at best 0.401 / 0.396) nor 0.75 m BEV cells (LiDAR: 0.319 / 0.260 against
 # 0.328 / 0.260) gets it there; with twice the data (40 frames per log) and images twice as large, 960

@@ -198,9 +198,6 @@ def test_routes_put_the_ego_in_every_lane_and_through_every_turn(worlds):
     assert {"junction_left", "junction_right", "roundabout", "fork", "merge", "s_bend", "road"} <= kinds
 
 
-# --- AV2 -------------------------------------------------------------------------------------------
-
-
 @pytest.mark.parametrize("seed", [SEED, 1, 2])
 def test_both_splits_drive_lanes_with_a_lane_on_their_right(seed):
     """The default logs of training and of validation alike put the ego, in some frames, in a lane with
@@ -219,6 +216,9 @@ def test_both_splits_drive_lanes_with_a_lane_on_their_right(seed):
     # measured (seeds 3, 1, 2): 64 / 59 / 27 training and 8 / 7 / 10 validation frames of 160 / 40;
     # before the inner-lane routes, 41 / 29 / 33 and 8 / 0 / 11
     assert frames_inner["train"] >= 20 and frames_inner["val"] >= 5, frames_inner
+
+
+# --- AV2 -------------------------------------------------------------------------------------------
 
 
 def test_av2_logs_load_through_the_av2_api(av2_logs, world_of):

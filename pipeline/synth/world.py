@@ -342,7 +342,7 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     ego_lane = min(
         stem.forward[-1], key=lambda i: np.hypot(*(net.lanes[i].centerline()[:, :2] - view_xy).T).min()
     )
-    foci = {  # the kinds of ROUTE_KINDS
+    foci = {  # every kind that ROUTE_KINDS names
         "roundabout": [(street.forward[0][-1], (view.x, view.y))],
         "fork": [(ramp[0], tuple(float(v) for v in net.lanes[fork_lane].path.end.xy))],
         "s_bend": [(ego_lane, (reentering_view.x, reentering_view.y))],
@@ -416,8 +416,21 @@ ROUTE_LENGTH_M = 260.0  # enough for 20 frames 1 s apart at 12 m/s, plus the lea
 # that a dataset of a few logs still meets them, with routes from inner lanes among them, so that
 # training and validation (the last two of the default 10 logs: a junction from an inner lane and the
 # ring) both meet an ego with a lane of its direction on its right.
-ROUTE_KINDS = ("roundabout", "fork", "s_bend", "road", "junction_left", "junction_right", "t_junction_turn",
-               "junction_straight", "junction_straight", "roundabout_through", "merge", "curve", "road")  # fmt: skip
+ROUTE_KINDS = (
+    "roundabout",  # the 8 training logs of `cli synth`'s default 10
+    "fork",
+    "s_bend",
+    "road",
+    "junction_left",
+    "junction_right",
+    "t_junction_turn",
+    "junction_straight",
+    "junction_straight",  # its 2 validation logs
+    "roundabout_through",
+    "merge",  # more logs
+    "curve",
+    "road",
+)
 
 
 def _routes(net: Network, foci: dict[str, list], rng: np.random.Generator) -> list[Route]:

@@ -45,7 +45,8 @@ CHECKS = [
 # 0.328 / 0.260) gets it there; with twice the data (40 frames per log) and images twice as large, 960
 # steps (1,611 s) reached 0.451 / 0.514 on the split before inner-lane routes, 4.5x the budget. More,
 # smaller steps help it: train.batch_size=2 (960 steps) 0.403 / 0.334 in 506 s, batch 1 (1,920 steps)
-# 0.359 / 0.287 in 611 s; the preset keeps 4 until every model is measured with 2.
+# 0.359 / 0.287 in 611 s. With batch 2, LaneGAP fusion 0.301 / 0.283 (383 s; floor 0.323 / 0.281) and
+# MapTR 0.000 / 0.000 (no piece above its threshold): the preset keeps 4.
 # LaneGAP's decoder on the ground-truth raster (python -m baselines.decoder_oracle) is the limit of the
 # path-wise models: at the tiny preset's 1.5 m cells it scores 0.367 / 0.403 (64 queries: 0.341) and
 # at 0.6 m about 0.43 in 480 steps; perfect paths that turn less than 17 degrees alone would score 0.787

@@ -238,9 +238,12 @@ class PreparedDataset(torch.utils.data.Dataset):
         for camera in cameras:
             path = self.sensor_root / camera["image_path"]
             image, scale_x, scale_y = read_image(path, scale, camera["width"], camera["height"])
+            top = int(data.image_crop_top * image.shape[0])
+            image = image[top:]
+            k = scaled_intrinsics(np.array(camera["intrinsics"], np.float64).reshape(3, 3), scale_x, scale_y)
+            k[1, 2] -= top  # the rows cut off the top move the principal point up
             images.append(image)
-            k = np.array(camera["intrinsics"], np.float64).reshape(3, 3)
-            intrinsics.append(scaled_intrinsics(k, scale_x, scale_y))
+            intrinsics.append(k)
             extrinsics.append(np.array(camera["sensor_to_ego"], np.float64).reshape(4, 4))
             sizes.append(image.shape[:2])
         divisor = data.image_divisor

@@ -92,3 +92,41 @@ def test_prepare_records_the_ground_under_the_bev_origin(synth_prepared):
     for dataset, expected in (("nuscenes", -1.84), ("av2", 0.0)):
         ground = read_table(synth_prepared[dataset], "frames", columns=["ground_z"])["ground_z"].to_numpy()
         assert len(ground) > 0 and np.allclose(ground, expected, atol=0.01), (dataset, ground)
+
+
+@pytest.mark.parametrize("dataset", ["av2", "nuscenes"])
+def test_the_tiny_preset_crops_only_sky(synth_prepared, dataset):
+    """The rows that `data.image_crop_top` cuts off hold no projection of the BEV grid's pillar points:
+    the encoder sees every BEV cell in as many cameras, at the same image content, as uncropped."""
+    whole, cropped = tiny(), tiny()
+    assert cropped.data.image_crop_top > 0
+    whole.data.image_crop_top = 0.0
+    split = "train" if dataset == "av2" else "mini_train"
+    encoder = cropped.encoder
+    (x0, x1), (y0, y1) = encoder.x_range, encoder.y_range
+    xs, ys = np.meshgrid(np.linspace(x0, x1, 4 * encoder.bev_w), np.linspace(y0, y1, 4 * encoder.bev_h))
+    grid = np.column_stack([xs.ravel(), ys.ravel()])
+    for config in (whole, cropped):
+        config.encoder.modality = "camera"
+    data = [PreparedDataset(synth_prepared[dataset], split, config) for config in (whole, cropped)]
+    for index in (0, len(data[0]) // 2):
+        frame = data[0].frames[index]
+        points = torch.from_numpy(on_default_pillars(frame, grid)).float()
+        seen = []
+        for dataset_ in data:
+            sample = dataset_[index]
+            pixels, visible = project_points(
+                points, *(torch.from_numpy(a)[None] for a in (sample.intrinsics, sample.sensor_to_ego,
+                                                                sample.image_sizes)),
+            )  # fmt: skip
+            seen.append((sample, pixels[0], visible[0]))
+        (full, full_pixels, full_visible), (cut, cut_pixels, cut_visible) = seen
+        assert torch.equal(full_visible, cut_visible)
+        top = full.image_sizes[:, 0] - cut.image_sizes[:, 0]  # rows cut off each camera
+        assert (top > 0).all()
+        shift = torch.from_numpy(np.stack([np.zeros_like(top), top], 1)).float()[:, None]
+        assert full_visible.sum() > 1000
+        assert torch.allclose((full_pixels - shift)[full_visible], cut_pixels[cut_visible], atol=1e-3)
+        for camera, (height, width) in enumerate(cut.image_sizes):
+            kept = full.images[camera, :, top[camera] : top[camera] + height, :width]
+            assert np.array_equal(kept, cut.images[camera, :, :height, :width])

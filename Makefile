@@ -19,8 +19,10 @@ demo: $(STAMP)
 	.venv/bin/cli roundtrip --data $(DEMO)/prepared/av2 --via path --out $(DEMO)/roundtrip_path.json
 	.venv/bin/cli roundtrip --data $(DEMO)/prepared/av2 --via piece --out $(DEMO)/roundtrip_piece.json
 	.venv/bin/cli roundtrip --data $(DEMO)/prepared/av2 --via pixel --out $(DEMO)/roundtrip_pixel.json
-	.venv/bin/cli train --model lanegap --data $(DEMO)/prepared/av2 --out $(DEMO)/runs/lanegap_lidar --preset tiny --modality lidar --epochs 2
-	.venv/bin/cli eval --run $(DEMO)/runs/lanegap_lidar --data $(DEMO)/prepared/av2 --split val
+	.venv/bin/cli train --model hdmapnet --data $(DEMO)/prepared/av2 --out $(DEMO)/runs/hdmapnet_fusion --preset tiny
+	.venv/bin/cli eval --run $(DEMO)/runs/hdmapnet_fusion --data $(DEMO)/prepared/av2 --split val
+	.venv/bin/cli train --model lanegap --data $(DEMO)/prepared/av2 --out $(DEMO)/runs/lanegap_fusion --preset tiny
+	.venv/bin/cli eval --run $(DEMO)/runs/lanegap_fusion --data $(DEMO)/prepared/av2 --split val
 	.venv/bin/cli report --runs $(DEMO)/runs --roundtrip $(DEMO)/roundtrip_path.json --roundtrip $(DEMO)/roundtrip_piece.json --roundtrip $(DEMO)/roundtrip_pixel.json --out $(DEMO)/report
 
 # The learning checks run alone: their 6-minute budgets are wall time on both cores, so plain

@@ -32,12 +32,24 @@ CHECKS = [
     ("maptr", "fusion", 0.4, 0.0),
     ("stsu", "fusion", 0.4, 0.0),
 ]
-# MEASURED 2026-12-02 (seed 0, tiny preset: 12 epochs = 480 steps, default thresholds; all five fail),
-# directed TOPO / Junction TOPO F1 on the 40 validation frames, floor 0.323 / 0.268 (the constant prior;
-# other log's sensors lower), wall time with the data's preparation (47 s):
-# - LaneGAP fusion 0.257 / 0.266 (396 s); LaneGAP LiDAR 0.253 / 0.294 (185 s);
-# - HDMapNet fusion 0.363 / 0.305, margins +0.040 / +0.037 (559 s: 0.94 steps/s);
-# - MapTR fusion 0.057 / 0.072 (387 s); STSU fusion 0.158 / 0.177 (305 s).
+# MEASURED 2026-12-02, stop 20 (seed 0, tiny preset: batch 2, 8 epochs = 640 steps, full-size synthetic
+# images with the sky cropped; `make test-learning` alone: 5 failed in 778 s), directed TOPO / Junction
+# TOPO F1 on the 40 validation frames, floor 0.323 / 0.268 (the constant prior), time with the data (36 s):
+# - HDMapNet fusion 0.471 / 0.365, margins +0.149 / +0.097 (240 s): at the bars' edge. The same config
+#   run alone gave 0.480 / 0.387 (+0.157 / +0.119): CPU convolutions' float order moves it by ~0.01-0.04;
+# - LaneGAP fusion 0.278 / 0.280 (197 s); LaneGAP LiDAR 0.297 / 0.258 (82 s);
+# - MapTR fusion 0.000 / 0.000 (no piece above its threshold, 204 s); STSU fusion 0.300 / 0.247 (165 s).
+# Before (stop 19: batch 4, 480 steps, images at 0.5): HDMapNet 0.363 / 0.305, LaneGAP 0.257 / 0.266 and
+# LiDAR 0.253 / 0.294, MapTR 0.057 / 0.072, STSU 0.158 / 0.177.
+# HDMapNet variants on this split (directed TOPO / Junction TOPO F1, train seconds): full-size images
+# without the crop, 960 steps 0.490 / 0.416 (414 s), 640 steps 0.467 / 0.404 (285 s); with the crop
+# 800 steps 0.440 / 0.352, lr 4e-3 0.447 / 0.348, 0.75 m LiDAR pillars and 60,000 points 0.424 / 0.361,
+# lane class weight 2.13 0.363 / 0.285 (blobs); 0.75 m BEV cells 0.481 / 0.407 (532 s); image features
+# at stride 4 0.482 / 0.409 (322 s). It underfits: 0.461 on its own training frames. Its misses are
+# lanes it never draws (mIoU 0.36 against the raster round trip's 0.79), not directions (undirected
+# F1 0.473) nor its post-processing (thresholds 0.3-0.7: at best +0.006; smoothing the traced branches
+# over 2-6 m: +0.002 to +0.007, not landed).
+# Stop 19's figures with batch 4, 480 steps and images at 0.5 (kept for the levers they rule out):
 # HDMapNet underfits rather than overfits: on the training frames 0.399 / 0.274 (validation 0.365 /
 # 0.355, on an earlier version of this split); a third of the ground-truth lane length has no prediction
 # within 2 m. Neither its post-processing (thresholds 0.3-0.5, hysteresis, smoothing, bridging gaps up to
@@ -46,7 +58,7 @@ CHECKS = [
 # steps (1,611 s) reached 0.451 / 0.514 on the split before inner-lane routes, 4.5x the budget. More,
 # smaller steps help it: train.batch_size=2 (960 steps) 0.403 / 0.334 in 506 s, batch 1 (1,920 steps)
 # 0.359 / 0.287 in 611 s. With batch 2, LaneGAP fusion 0.301 / 0.283 (383 s; floor 0.323 / 0.281) and
-# MapTR 0.000 / 0.000 (no piece above its threshold): the preset keeps 4.
+# MapTR 0.000 / 0.000 (no piece above its threshold); the preset then kept 4.
 # LaneGAP's decoder on the ground-truth raster (python -m baselines.decoder_oracle) is the limit of the
 # path-wise models: at the tiny preset's 1.5 m cells it scores 0.367 / 0.403 (64 queries: 0.341) and
 # at 0.6 m about 0.43 in 480 steps; perfect paths that turn less than 17 degrees alone would score 0.787

@@ -145,8 +145,10 @@ def test_dataset_reads_sensors_and_targets(tmp_path):
     config = toy_config("fusion")
     dataset = PreparedDataset(data, "train", config)
     sample = dataset[0]
-    assert sample.images.shape == (2, 3, 32, 64)  # 96 x 160 at 0.25 -> 24 x 40, padded to 32 x 64
-    assert sample.image_sizes.tolist() == [[24, 40], [24, 40]]
+    # 96 x 160 at 0.25 -> 24 x 40, the top 9 rows cut (the tiny preset's image_crop_top 0.4) -> 15 x 40,
+    # padded to 32 x 64
+    assert sample.images.shape == (2, 3, 32, 64)
+    assert sample.image_sizes.tolist() == [[15, 40], [15, 40]]
     assert sample.paths.shape == (2, 20, 2) and 0 <= sample.paths.min() and sample.paths.max() <= 1
     assert np.allclose(sample.paths[:, 0, 1], 1.0) and np.allclose(sample.paths[:, -1, 1], 0.0)  # y=-30 .. 30
     assert sample.seg.shape == (40, 20) and sample.seg.sum() > 0

@@ -224,7 +224,7 @@ def tiny() -> Config:
         # HDMapNet fusion on the check's split, directed TOPO / Junction TOPO F1 (floor 0.323 / 0.268):
         # batch 4, 480 steps 0.363 / 0.305; batch 2, 960 steps 0.403 / 0.334 (images at 0.5 here);
         # batch 2: 640 steps 0.471-0.480 / 0.365-0.387 (201 s), 800 steps 0.440 / 0.352, 880 steps 0.488
-        # / 0.392 (303 s), 960 steps 0.483 / 0.449 (319 s, past the check's budget with the data's 36 s)
+        # / 0.392 (261-303 s), 960 steps 0.483 / 0.449 (319 s: past the check's 6 minutes with the data)
         train=TrainConfig(
             epochs=11, batch_size=2, lr=2e-3, backbone_lr_mult=1.0, warmup_iters=50, amp=False, threads=2
         ),

@@ -113,8 +113,8 @@ def test_the_tiny_preset_crops_only_sky(synth_prepared, dataset):
         frame = data[0].frames[index]
         points = torch.from_numpy(on_default_pillars(frame, grid)).float()
         seen = []
-        for dataset_ in data:
-            sample = dataset_[index]
+        for prepared in data:
+            sample = prepared[index]
             pixels, visible = project_points(
                 points, *(torch.from_numpy(a)[None] for a in (sample.intrinsics, sample.sensor_to_ego,
                                                                 sample.image_sizes)),

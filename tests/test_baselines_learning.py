@@ -7,7 +7,7 @@ TOPO F1: a model that does so reads its sensors.
 The data is `cli synth`'s default (10 logs x 20 frames 1 s apart, seed 0, 4 worlds): the validation logs
 drive a world that no training log visits. Each check stays within 6 minutes of wall time on the 2-core
 machine, run alone (not beside other tests): `make test-learning` (LANEGRAPH_LEARNING_CHECK=1). They are
-not part of `make test` today: none passes yet (see MEASURED)."""
+not part of `make test`: only HDMapNet's passes yet (see MEASURED)."""
 
 from __future__ import annotations
 
@@ -32,13 +32,17 @@ CHECKS = [
     ("maptr", "fusion", 0.4, 0.0),
     ("stsu", "fusion", 0.4, 0.0),
 ]
-# MEASURED 2026-12-02, stop 20 (seed 0, tiny preset: batch 2, 8 epochs = 640 steps, full-size synthetic
-# images with the sky cropped; `make test-learning` alone: 5 failed in 778 s), directed TOPO / Junction
-# TOPO F1 on the 40 validation frames, floor 0.323 / 0.268 (the constant prior), time with the data (36 s):
-# - HDMapNet fusion 0.471 / 0.365, margins +0.149 / +0.097 (240 s): at the bars' edge. The same config
-#   run alone gave 0.480 / 0.387 (+0.157 / +0.119): CPU convolutions' float order moves it by ~0.01-0.04;
-# - LaneGAP fusion 0.278 / 0.280 (197 s); LaneGAP LiDAR 0.297 / 0.258 (82 s);
-# - MapTR fusion 0.000 / 0.000 (no piece above its threshold, 204 s); STSU fusion 0.300 / 0.247 (165 s).
+# MEASURED 2026-12-02, stop 20 (seed 0, tiny preset: batch 2, 11 epochs = 880 steps, full-size synthetic
+# images with the sky cropped; `make test-learning` alone: 1 passed, 4 failed in 1,028 s), directed TOPO /
+# Junction TOPO F1 on the 40 validation frames, floor 0.323 / 0.268 (the constant prior), time with the
+# data's preparation (~30 s):
+# - HDMapNet fusion 0.488 / 0.392, margins +0.165 / +0.124 (298 s): passes, the first model to;
+# - LaneGAP fusion 0.325 / 0.353 (240 s); LaneGAP LiDAR 0.269 / 0.294 (116 s);
+# - MapTR fusion 0.092 / 0.035 (240 s; score threshold 0.3: 0.171, precision 0.12); STSU 0.120 / 0.086
+#   (226 s).
+# With 8 epochs (640 steps): HDMapNet 0.471 / 0.365 (+0.149 / +0.097, 240 s; 0.480 / 0.387 run alone: CPU
+# convolutions' float order moves a run by ~0.01-0.04), LaneGAP 0.278 / 0.280 and LiDAR 0.297 / 0.258,
+# MapTR 0.000 / 0.000 (no piece above its threshold), STSU 0.300 / 0.247.
 # Before (stop 19: batch 4, 480 steps, images at 0.5): HDMapNet 0.363 / 0.305, LaneGAP 0.257 / 0.266 and
 # LiDAR 0.253 / 0.294, MapTR 0.057 / 0.072, STSU 0.158 / 0.177.
 # HDMapNet variants on this split (directed TOPO / Junction TOPO F1, train seconds): full-size images

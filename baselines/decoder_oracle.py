@@ -1,16 +1,18 @@
-"""Diagnosis: LaneGAP's decoder with perfect perception. Its BEV input is the ground-truth raster (lane
-mask and unit direction, pooled to cells of `pool` x 0.15 m) through a two-layer conv stem instead of the
-sensor encoder; trained as `cli train` trains (loss, AdamW, warm-up + cosine), scored on both splits.
-If this cannot reach a learning check's bar, no encoder will help: the decoder, its loss or its schedule
-is the limit.
+"""Diagnosis: a query model's decoder with perfect perception. Its BEV input is the ground-truth raster
+(lane mask and unit direction, pooled to cells of `pool` x 0.15 m) through a two-layer conv stem instead
+of the sensor encoder; trained with the model's own loss and `cli train`'s optimiser and schedule
+(AdamW, warm-up + cosine), scored through the model's own post-processing on both splits. If this
+cannot reach a learning check's bar, no encoder will help: the decoder, its loss or its schedule is the
+limit.
 
-    python -m baselines.decoder_oracle --data prepared [--preset tiny] [--steps 480] [--pool 4]
-        [--set decoder.layers=6]
+    python -m baselines.decoder_oracle --data prepared [--model lanegap|maptr|stsu] [--preset tiny]
+        [--steps 880] [--pool 10] [--set decoder.layers=6]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -21,15 +23,16 @@ from rich.console import Console
 from rich.table import Table
 from torch import nn
 
-from baselines.config import resolve_config
-from baselines.data import PreparedDataset, Targets
-from baselines.models.lanegap import LaneGAP, LaneGAPLoss, select_paths
+from baselines.config import Config, resolve_config
+from baselines.data import PreparedDataset, collate
+from baselines.models import build
 from baselines.train import build_optimizer, lr_factor
 from benchmark.metrics import MetricParams
-from benchmark.path2graph import path2graph
 from benchmark.score import default_range, graphs_from_table, read_graph_table, score_pairs
 from pipeline.io import decode_raster, read_table
 from pipeline.raster import direction_vectors
+
+QUERY_MODELS = ("lanegap", "maptr", "stsu")  # HDMapNet has no decoder to isolate: its head is the raster
 
 
 def oracle_bev(row: dict, pool: int) -> torch.Tensor:
@@ -40,104 +43,114 @@ def oracle_bev(row: dict, pool: int) -> torch.Tensor:
     return F.avg_pool2d(torch.from_numpy(channels)[None], pool)[0]
 
 
-class OracleLaneGAP(nn.Module):
-    def __init__(self, config, channels: int):
+class OracleModel(nn.Module):
+    """The model's decoder (`decode`) on a conv stem over the ground-truth raster."""
+
+    def __init__(self, model: nn.Module, channels: int):
         super().__init__()
         self.stem = nn.Sequential(
             nn.Conv2d(3, channels, 3, padding=1), nn.ReLU(True), nn.Conv2d(channels, channels, 3, padding=1)
         )
-        self.lanegap = LaneGAP(config)
-        self.lanegap.encoder = nn.Identity()  # the sensor encoder is what this replaces
+        self.model = model
+        self.model.encoder = nn.Identity()  # the sensor encoder is what this replaces
 
     def forward(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
-        return self.lanegap.decode(self.stem(bev))
+        return self.model.decode(self.stem(bev))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, required=True)
-    parser.add_argument("--preset", default="tiny")
-    parser.add_argument("--steps", type=int, default=480)
-    parser.add_argument("--pool", type=int, default=4, help="raster cells (0.15 m) per oracle BEV cell side")
-    parser.add_argument("--set", action="append", default=[], help="config override, as `cli train --set`")
-    args = parser.parse_args()
+def oracle_config(model: str, preset: str, overrides: list[str]) -> Config:
+    if model not in QUERY_MODELS:
+        raise ValueError(f"the decoder oracle takes a query model ({', '.join(QUERY_MODELS)}), not {model!r}")
+    # LiDAR keeps the data loader off the camera images, which the oracle never reads; LaneGAP's
+    # auxiliary segmentation would be read off the very raster it is fed.
+    extra = ["decoder.aux_seg=false"] if model == "lanegap" else []
+    return resolve_config(preset, modality="lidar", model=model, overrides=[*extra, *overrides])
 
-    torch.manual_seed(0)
-    config = resolve_config(args.preset, modality="lidar", overrides=["decoder.aux_seg=false", *args.set])
-    if config.train.threads:
-        torch.set_num_threads(config.train.threads)
-    rasters = {row["frame_id"]: row for row in read_table(args.data, "rasters").to_pylist()}
+
+def train_oracle(
+    config: Config, data: Path, steps: int, pool: int | None = None
+) -> tuple[OracleModel, dict, float]:
+    """The oracle trained for `steps` on the training split; (model, {split: [(sample, bev)]}, seconds).
+    pool None: the raster pooled to the config's BEV grid, as coarse as the encoder's map."""
+    torch.manual_seed(config.train.seed)
+    built = build(config)
+    rasters = {row["frame_id"]: row for row in read_table(data, "rasters").to_pylist()}
+    if pool is None:
+        raster_rows = decode_raster(next(iter(rasters.values())))[0].shape[0]
+        pool = max(1, round(raster_rows / config.encoder.bev_h))
     splits = {}
     for split in (config.train.train_split, config.train.val_split):
-        dataset = PreparedDataset(args.data, split, config)
-        ids = [frame["frame_id"] for frame in dataset.frames]
-        splits[split] = [
-            (
-                i,
-                oracle_bev(rasters[i], args.pool),
-                torch.from_numpy(np.stack(dataset.paths[i]))
-                if dataset.paths[i]
-                else torch.zeros(0, config.decoder.path_points, 2),
-            )
-            for i in ids
-        ]
-    model = OracleLaneGAP(config, config.encoder.channels)
+        dataset = PreparedDataset(data, split, config, built.needs)
+        samples = [dataset[k] for k in range(len(dataset))]
+        splits[split] = [(sample, oracle_bev(rasters[sample.frame_id], pool)) for sample in samples]
+    model = OracleModel(built.model, config.encoder.channels)
     optimizer = build_optimizer(model, config)
-    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: lr_factor(step, args.steps, config))
-    criterion = LaneGAPLoss(config.decoder)
+    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: lr_factor(step, steps, config))
     rng = np.random.default_rng(config.train.seed)
     train = splits[config.train.train_split]
     start = time.perf_counter()
-    for _ in range(args.steps):
+    for _ in range(steps):
         chosen = rng.choice(len(train), config.train.batch_size, replace=False)
         outputs = model(torch.stack([train[k][1] for k in chosen]))
-        targets = Targets([train[k][2] for k in chosen], torch.zeros(0))  # no aux segmentation here
-        loss = criterion(outputs, targets)["loss"]
+        loss = built.loss(outputs, collate([train[k][0] for k in chosen]).targets)["loss"]
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), config.train.grad_clip)
         optimizer.step()
         scheduler.step()
-    seconds = time.perf_counter() - start
+    return model.eval(), splits, time.perf_counter() - start
 
-    truth = graphs_from_table(read_graph_table(args.data), args.data)
-    params = MetricParams(bev_range=default_range(args.data))
-    model.eval()
-    table = Table(
-        title=f"LaneGAP {args.preset} decoder on the GT raster: {args.steps} steps in {seconds:.0f} s"
-    )
-    for column in ("split", "threshold", "TOPO F1", "Junction TOPO F1", "TOPO P", "TOPO R"):
-        table.add_column(column)
+
+@torch.no_grad()
+def score_oracle(model: OracleModel, config: Config, splits: dict, data: Path, thresholds) -> list[dict]:
+    """Directed TOPO / Junction TOPO of every split at every score threshold, through the model's own
+    post-processing."""
+    truth = graphs_from_table(read_graph_table(data), data)
+    params = MetricParams(bev_range=default_range(data))
+    rows = []
     for split, items in splits.items():
-        with torch.no_grad():
-            points = [select_paths(model(bev[None]), 0.0)[0] for _, bev, _ in items]
-        for threshold in (0.4, 0.5, 0.6):
-            pairs = [
-                (
-                    path2graph(
-                        [
-                            config.encoder.unit_to_metres(p.numpy().astype(np.float64))
-                            for p in paths[scores > threshold]
-                        ]
-                    ),
-                    truth[frame_id],
-                )
-                for (frame_id, _, _), (scores, paths) in zip(items, points, strict=True)
-            ]
+        outputs = [model(bev[None]) for _, bev in items]
+        for threshold in thresholds:
+            head = dataclasses.replace(config.decoder, score_threshold=threshold)
+            to_graphs = build(dataclasses.replace(config, decoder=head)).to_graphs
+            pairs = [(to_graphs(out)[0], truth[sample.frame_id]) for (sample, _), out in zip(items, outputs)]
             directed = score_pairs(pairs, params)["directed"]
-            table.add_row(
-                split,
-                f"{threshold}",
-                *(
-                    f"{v:.3f}"
-                    for v in (
-                        directed["topo"]["f1"],
-                        directed["junction_topo"]["f1"],
-                        directed["topo"]["precision"],
-                        directed["topo"]["recall"],
-                    )
-                ),
-            )
+            rows.append({"split": split, "threshold": threshold, **{
+                f"{metric} {field}": directed[metric][field]
+                for metric in ("topo", "junction_topo") for field in ("f1", "precision", "recall")
+            }})  # fmt: skip
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, required=True)
+    parser.add_argument("--model", default="lanegap", choices=QUERY_MODELS)
+    parser.add_argument("--preset", default="tiny")
+    parser.add_argument("--steps", type=int, default=880, help="the tiny preset's steps on cli synth's data")
+    parser.add_argument(
+        "--pool",
+        type=int,
+        help="raster cells (0.15 m) per oracle cell side; default: as "
+        "coarse as the preset's BEV grid (tiny: 10, 1.5 m cells)",
+    )
+    parser.add_argument("--set", action="append", default=[], help="config override, as `cli train --set`")
+    args = parser.parse_args()
+
+    config = oracle_config(args.model, args.preset, args.set)
+    if config.train.threads:
+        torch.set_num_threads(config.train.threads)
+    model, splits, seconds = train_oracle(config, args.data, args.steps, args.pool)
+    height, width = next(iter(splits.values()))[0][1].shape[1:]
+    table = Table(
+        title=f"{args.model} {args.preset} decoder on the GT raster ({height} x {width} cells): "
+        f"{args.steps} steps in {seconds:.0f} s"
+    )
+    columns = ("topo f1", "junction_topo f1", "topo precision", "topo recall")
+    for column in ("split", "threshold", *columns):
+        table.add_column(column.replace("junction_topo", "Junction TOPO").replace("topo", "TOPO"))
+    for row in score_oracle(model, config, splits, args.data, (0.4, 0.5, 0.6)):
+        table.add_row(row["split"], f"{row['threshold']}", *(f"{row[c]:.3f}" for c in columns))
     Console().print(table)
 
 

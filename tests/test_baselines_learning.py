@@ -88,8 +88,9 @@ CHECKS = [
 # the predicted paths (+0.01 to +0.02; +0.08 after 8,800 steps at 0.6 m).
 # HDMapNet on other seeds of `cli synth` (same recipe, its own validation world): seed 1 0.298 / 0.245,
 # floor 0.181 / 0.147 (0.636 / 0.418 on its training frames: the validation world is where it fails;
-# LiDAR only 0.243 / 0.151, camera only 0.260 / 0.250; 40 frames a log and 960 steps 0.333 / 0.187); seed 2 0.455 / 0.272, floor
-# 0.268 / 0.184 (margins +0.187 / +0.088, 323 s of training). Its pass holds on seed 0 only.
+# LiDAR only 0.243 / 0.151, camera only 0.260 / 0.250; 40 frames a log and 960 steps 0.333 / 0.187);
+# seed 2 0.455 / 0.272, floor 0.268 / 0.184 (margins +0.187 / +0.088, 323 s of training). Its pass holds
+# on seed 0 only.
 # The bars are the learning-check issue's; do not lower them.
 
 

@@ -107,12 +107,15 @@ def score_oracle(model: OracleModel, config: Config, splits: dict, data: Path, t
     post-processing."""
     truth = graphs_from_table(read_graph_table(data), data)
     params = MetricParams(bev_range=default_range(data))
+    post_processing = {  # built once per threshold (a build makes a whole model), used on every split
+        threshold: build(dataclasses.replace(config, decoder=dataclasses.replace(
+            config.decoder, score_threshold=threshold))).to_graphs
+        for threshold in thresholds
+    }  # fmt: skip
     rows = []
     for split, items in splits.items():
         outputs = [model(bev[None]) for _, bev in items]
-        for threshold in thresholds:
-            head = dataclasses.replace(config.decoder, score_threshold=threshold)
-            to_graphs = build(dataclasses.replace(config, decoder=head)).to_graphs
+        for threshold, to_graphs in post_processing.items():
             pairs = [(to_graphs(out)[0], truth[sample.frame_id]) for (sample, _), out in zip(items, outputs)]
             directed = score_pairs(pairs, params)["directed"]
             rows.append({"split": split, "threshold": threshold, **{

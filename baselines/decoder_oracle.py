@@ -6,7 +6,11 @@ cannot reach a learning check's bar, no encoder will help: the decoder, its loss
 limit.
 
     python -m baselines.decoder_oracle --data prepared [--model lanegap|maptr|stsu] [--preset tiny]
-        [--steps 880] [--pool 10] [--set decoder.layers=6]
+        [--steps 880] [--pool 10] [--train-frames N] [--set decoder.layers=6]
+
+--train-frames N trains on N training frames only (drawn with the config's seed): a memorisation check.
+A decoder that cannot fit a handful of frames it is shown the answer for in the budget is short of steps
+or capacity, whatever the data.
 """
 
 from __future__ import annotations
@@ -68,10 +72,11 @@ def oracle_config(model: str, preset: str, overrides: list[str]) -> Config:
 
 
 def train_oracle(
-    config: Config, data: Path, steps: int, pool: int | None = None
+    config: Config, data: Path, steps: int, pool: int | None = None, train_frames: int | None = None
 ) -> tuple[OracleModel, dict, float]:
     """The oracle trained for `steps` on the training split; (model, {split: [(sample, bev)]}, seconds).
-    pool None: the raster pooled to the config's BEV grid, as coarse as the encoder's map."""
+    pool None: the raster pooled to the config's BEV grid, as coarse as the encoder's map; train_frames:
+    only that many training frames (drawn with the config's seed), which the returned split then holds."""
     torch.manual_seed(config.train.seed)
     built = build(config)
     rasters = {row["frame_id"]: row for row in read_table(data, "rasters").to_pylist()}
@@ -79,18 +84,26 @@ def train_oracle(
         raster_rows = decode_raster(next(iter(rasters.values())))[0].shape[0]
         pool = max(1, round(raster_rows / config.encoder.bev_h))
     splits = {}
+    rng = np.random.default_rng(config.train.seed)
     for split in (config.train.train_split, config.train.val_split):
         dataset = PreparedDataset(data, split, config, built.needs)
-        samples = [dataset[k] for k in range(len(dataset))]
+        indices = range(len(dataset))
+        if split == config.train.train_split and train_frames is not None:
+            if not 1 <= train_frames <= len(dataset):
+                raise ValueError(
+                    f"train_frames must be 1 to {len(dataset)} (the {split} split), not {train_frames}"
+                )
+            indices = sorted(rng.choice(len(dataset), train_frames, replace=False).tolist())
+        samples = [dataset[k] for k in indices]
         splits[split] = [(sample, oracle_bev(rasters[sample.frame_id], pool)) for sample in samples]
     model = OracleModel(built.model, config.encoder.channels)
     optimizer = build_optimizer(model, config)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: lr_factor(step, steps, config))
-    rng = np.random.default_rng(config.train.seed)
     train = splits[config.train.train_split]
+    batch_size = min(config.train.batch_size, len(train))
     start = time.perf_counter()
     for _ in range(steps):
-        chosen = rng.choice(len(train), config.train.batch_size, replace=False)
+        chosen = rng.choice(len(train), batch_size, replace=False)
         outputs = model(torch.stack([train[k][1] for k in chosen]))
         loss = built.loss(outputs, collate([train[k][0] for k in chosen]).targets)["loss"]
         optimizer.zero_grad(set_to_none=True)
@@ -137,17 +150,19 @@ def main() -> None:
         help="raster cells (0.15 m) per oracle cell side; default: as "
         "coarse as the preset's BEV grid (tiny: 10, 1.5 m cells)",
     )
+    parser.add_argument("--train-frames", type=int, help="train on this many training frames (memorisation)")
     parser.add_argument("--set", action="append", default=[], help="config override, as `cli train --set`")
     args = parser.parse_args()
 
     config = oracle_config(args.model, args.preset, args.set)
     if config.train.threads:
         torch.set_num_threads(config.train.threads)
-    model, splits, seconds = train_oracle(config, args.data, args.steps, args.pool)
+    model, splits, seconds = train_oracle(config, args.data, args.steps, args.pool, args.train_frames)
     height, width = next(iter(splits.values()))[0][1].shape[1:]
     table = Table(
         title=f"{args.model} {args.preset} decoder on the GT raster ({height} x {width} cells): "
         f"{args.steps} steps in {seconds:.0f} s"
+        + (f", {args.train_frames} training frames" if args.train_frames else "")
     )
     columns = ("topo f1", "junction_topo f1", "topo precision", "topo recall")
     for column in ("split", "threshold", *columns):

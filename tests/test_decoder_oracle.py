@@ -47,3 +47,14 @@ def test_oracle_trains_and_scores_through_the_model(synth_prepared, model):
     # threshold 1.0 keeps nothing: no predicted graph, recall 0; threshold 0 keeps every query
     assert all(r["topo recall"] == 0.0 for r in rows if r["threshold"] == 1.0)
     assert all(r["topo recall"] > 0.0 for r in rows if r["threshold"] == 0.0)
+
+
+def test_oracle_memorisation_subset(synth_prepared):
+    config = oracle_config("lanegap", "tiny", ["train.warmup_iters=1"])
+    _, splits, _ = train_oracle(config, synth_prepared["av2"], steps=1, train_frames=4)
+    assert {split: len(items) for split, items in splits.items()} == {"train": 4, "val": 20}
+    assert len({sample.frame_id for sample, _ in splits["train"]}) == 4
+    _, again, _ = train_oracle(config, synth_prepared["av2"], steps=1, train_frames=4)  # seeded
+    assert [s.frame_id for s, _ in again["train"]] == [s.frame_id for s, _ in splits["train"]]
+    with pytest.raises(ValueError, match="train_frames must be 1 to 60"):
+        train_oracle(config, synth_prepared["av2"], steps=1, train_frames=61)

@@ -66,8 +66,8 @@ def oracle_config(model: str, preset: str, overrides: list[str]) -> Config:
     if model not in QUERY_MODELS:
         raise ValueError(f"the decoder oracle takes a query model ({', '.join(QUERY_MODELS)}), not {model!r}")
     # LiDAR keeps the data loader off the camera images, which the oracle never reads; LaneGAP's
-    # auxiliary segmentation would be read off the very raster it is fed.
-    extra = ["decoder.aux_seg=false"] if model == "lanegap" else []
+    # auxiliary segmentation and the fine BEV level's loss would be read off the very raster it is fed.
+    extra = ["decoder.fine_scale=0", *(["decoder.aux_seg=false"] if model == "lanegap" else [])]
     return resolve_config(preset, modality="lidar", model=model, overrides=[*extra, *overrides])
 
 

@@ -19,6 +19,7 @@ from baselines.blocks import mean_over_processes, mlp, sigmoid_focal_loss
 from baselines.config import Config
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
+from baselines.fine_bev import fine_losses
 from baselines.matcher import hungarian_match
 from baselines.query_decoder import QueryDecoder
 from benchmark.piece2graph import piece2graph
@@ -54,7 +55,7 @@ class PieceModel(nn.Module):
         self.encoder = BEVEncoder(config.encoder)
         self.decoder = QueryDecoder(
             dim, head.num_pieces, head.piece_points, bezier_points, head.layers, head.heads,
-            head.ffn_channels, head.dropout, head.deform_points,
+            head.ffn_channels, head.dropout, head.deform_points, head.fine_scale,
         )  # fmt: skip
         self.association = AssociationHead(dim)
 
@@ -164,10 +165,20 @@ class PieceCriterion(nn.Module):
         link_loss = association_loss(outputs["links"], matches, targets, head.max_link_pos_weight)
         total = total + head.link_weight * link_loss
         losses = {"cls": class_loss.detach(), "points": point_loss.detach(), "links": link_loss.detach()}
+        if "fine" in outputs:
+            fine = fine_losses(outputs["fine"], targets)
+            total = total + head.fine_weight * sum(fine.values())
+            losses.update({name: loss.detach() for name, loss in fine.items()})
         if self.direction_weight:
             losses["direction"] = dir_loss.detach()
         losses["loss"] = total
         return losses
+
+
+def piece_needs(config: Config) -> frozenset[str]:
+    """The prepared tables a piece-wise model trains on: the pieces and their links, and the rasters
+    with a fine BEV level."""
+    return frozenset({"pieces", "raster"} if config.decoder.fine_scale else {"pieces"})
 
 
 class PiecePostProcess:

@@ -20,6 +20,7 @@ from torch import nn
 
 from baselines.attention import DeformableAttention
 from baselines.blocks import FeedForward, bernstein_matrix, inverse_sigmoid, mlp
+from baselines.fine_bev import FineBEV
 
 # Points are regressed in sigmoid space over the BEV map widened by this fraction on every side: lanes
 # start and end on the crop's edge, which a sigmoid over exactly [0, 1] reaches only at infinity (the
@@ -49,20 +50,20 @@ def initial_lanes(num_instances: int, points: int) -> torch.Tensor:
 
 class DecoderLayer(nn.Module):
     def __init__(self, dim: int, heads: int, ffn: int, dropout: float, deform_points: int, anchors: int,
-                 points_per_instance: int):  # fmt: skip
+                 points_per_instance: int, levels: int = 1):  # fmt: skip
         super().__init__()
         self.points_per_instance = points_per_instance
         self.instance_attn = nn.MultiheadAttention(dim, heads, dropout=dropout, batch_first=True)
         self.point_attn = nn.MultiheadAttention(dim, heads, dropout=dropout, batch_first=True)
-        self.cross_attn = DeformableAttention(dim, heads, levels=1, points=deform_points, anchors=anchors)
+        self.cross_attn = DeformableAttention(dim, heads, levels, points=deform_points, anchors=anchors)
         self.ffn = FeedForward(dim, ffn, dropout)
         self.norms = nn.ModuleList(nn.LayerNorm(dim) for _ in range(4))
         self.dropout = nn.Dropout(dropout)
 
     def forward(
-        self, x: torch.Tensor, pos: torch.Tensor, anchors: torch.Tensor, bev: torch.Tensor
+        self, x: torch.Tensor, pos: torch.Tensor, anchors: torch.Tensor, levels: list[torch.Tensor]
     ) -> torch.Tensor:
-        """x, pos (B, Q * N, C); anchors (B, Q * N, A, 2) unit coordinates; bev (B, C, H, W)."""
+        """x, pos (B, Q * N, C); anchors (B, Q * N, A, 2) unit coordinates; levels: BEV maps (B, C, H, W)."""
         batch, tokens, dim = x.shape
         n = self.points_per_instance
 
@@ -76,17 +77,20 @@ class DecoderLayer(nn.Module):
         q = (x + pos).view(-1, n, dim)
         out = self.point_attn(q, q, x.view(-1, n, dim), need_weights=False)[0]
         x = self.norms[1](x + self.dropout(out.reshape(batch, tokens, dim)))
-        x = self.norms[2](x + self.dropout(self.cross_attn(x + pos, anchors, [bev])))
+        x = self.norms[2](x + self.dropout(self.cross_attn(x + pos, anchors, levels)))
         return self.norms[3](x + self.dropout(self.ffn(x)))
 
 
 class QueryDecoder(nn.Module):
     """BEV features (B, C, H, W) -> per layer instance logits (L, B, Q) and points (L, B, Q, N, 2) in unit
-    coordinates, and the last layer's instance features (B, Q, C): the mean of its point features."""
+    coordinates, and the last layer's instance features (B, Q, C): the mean of its point features. With a
+    fine scale, the attention also reads the fine BEV level, and in training "fine" holds its auxiliary
+    outputs (baselines/fine_bev.py)."""
 
     def __init__(self, dim: int, instances: int, points: int, bezier_points: int, layers: int, heads: int,
-                 ffn: int, dropout: float, deform_points: int):  # fmt: skip
+                 ffn: int, dropout: float, deform_points: int, fine_scale: float = 0.0):  # fmt: skip
         super().__init__()
+        self.fine = FineBEV(dim, fine_scale) if fine_scale else None
         self.instances = instances
         self.bezier = bezier_points > 0
         self.queries_per_instance = bezier_points if self.bezier else points
@@ -99,7 +103,16 @@ class QueryDecoder(nn.Module):
         self.initial_reference = nn.Parameter(initial_lanes(instances, self.queries_per_instance))
         anchors = bezier_points if self.bezier else 1
         self.layers = nn.ModuleList(
-            DecoderLayer(dim, heads, ffn, dropout, deform_points, anchors, self.queries_per_instance)
+            DecoderLayer(
+                dim,
+                heads,
+                ffn,
+                dropout,
+                deform_points,
+                anchors,
+                self.queries_per_instance,
+                1 + bool(fine_scale),
+            )  # fmt: skip
             for _ in range(layers)
         )
         self.class_heads = nn.ModuleList(mlp(dim, 1, 2) for _ in range(layers))
@@ -124,16 +137,23 @@ class QueryDecoder(nn.Module):
 
     def forward(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
         batch, dim = bev.shape[:2]
+        levels, outputs = [bev], {}
+        if self.fine is not None:
+            fine, aux = self.fine(bev)
+            levels.append(fine)
+            if aux is not None:
+                outputs["fine"] = aux
         queries = (self.instance_embedding[:, None] + self.point_embedding[None]).flatten(0, 1)
         x, pos = queries.unsqueeze(0).expand(batch, -1, -1).split(dim, dim=-1)
         reference = self.initial_reference.sigmoid().view(1, -1, 2).expand(batch, -1, -1)
         all_logits, all_points = [], []
         for layer, class_head, point_head in zip(self.layers, self.class_heads, self.point_heads):
-            x = layer(x, pos, self.anchors(to_unit(reference)), bev)
+            x = layer(x, pos, self.anchors(to_unit(reference)), levels)
             refined = (point_head(x) + inverse_sigmoid(reference)).sigmoid()
             features = x.view(batch, self.instances, self.queries_per_instance, dim).mean(2)
             all_logits.append(class_head(features).squeeze(-1))
             points = refined.view(batch, self.instances, self.queries_per_instance, 2)
             all_points.append(to_unit(self.bernstein @ points if self.bezier else points))
             reference = refined.detach()  # each layer refines the previous one's points
-        return {"logits": torch.stack(all_logits), "points": torch.stack(all_points), "features": features}
+        outputs.update(logits=torch.stack(all_logits), points=torch.stack(all_points), features=features)
+        return outputs

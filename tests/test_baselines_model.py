@@ -171,15 +171,20 @@ def test_lanegap_shapes_loss_and_gradients(modality, bezier_points):
     assert -MARGIN <= outputs["points"].min() and outputs["points"].max() <= 1 + MARGIN
     targets = [torch.rand(3, n, 2), torch.zeros(0, n, 2)]
     seg = torch.randint(0, 2, (2, config.encoder.bev_h, config.encoder.bev_w))
-    losses = LaneGAPLoss(config.decoder)(outputs, Targets(targets, seg))
-    assert set(losses) == {"loss", "cls", "points", "seg"} and torch.isfinite(losses["loss"])
+    # the prepared 0.15 m rasters, for the fine BEV level's loss (0.6 m cells: 1.5 m / fine_scale 2.5)
+    raster_mask = torch.randint(0, 2, (2, 400, 200), dtype=torch.uint8)
+    raster_direction = raster_mask * torch.randint(1, 37, (2, 400, 200), dtype=torch.uint8)
+    assert outputs["fine"].shape == (2, 4, 100, 50)
+    losses = LaneGAPLoss(config.decoder)(outputs, Targets(targets, seg, raster_mask, raster_direction))
+    assert set(losses) == {"loss", "cls", "points", "seg", "fine_seg", "fine_direction"}
+    assert torch.isfinite(losses["loss"])
     losses["loss"].backward()
     first = model.encoder.camera.backbone.conv1 if modality != "lidar" else model.encoder.lidar.point_net[0]
     assert first.weight.grad is not None and first.weight.grad.abs().sum() > 0
     model.eval()
     with torch.no_grad():
         outputs = model(batch)
-    assert "seg" not in outputs  # the auxiliary head is off at inference
+    assert "seg" not in outputs and "fine" not in outputs  # the auxiliary heads are off at inference
     selected = select_paths(outputs, threshold=0.0)
     assert len(selected) == 2 and selected[0][1].shape == (paths, n, 2)
     assert torch.all(selected[0][0][:-1] >= selected[0][0][1:])

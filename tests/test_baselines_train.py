@@ -24,6 +24,9 @@ from baselines.config import Config, tiny
 from baselines.data import PreparedDataset, collate, resample_polyline, scaled_intrinsics
 from baselines.train import lr_factor, train
 from pipeline import io
+from pipeline.geometry import Range
+from pipeline.lane_graph import LaneGraph
+from pipeline.raster import Grid, rasterize
 
 
 def front_camera_pose(yaw: float) -> np.ndarray:
@@ -100,10 +103,22 @@ def write_toy_dataset(root: Path, frames: int = 6, split: str = "train") -> Path
             {"frame_id": frame["frame_id"], "x": sum((r["x"] for r in lines), []),
              "y": sum((r["y"] for r in lines), []), "src": src, "dst": [v + 1 for v in src]}
         )  # fmt: skip
+    grid = Grid(Range(-15.0, 15.0, -30.0, 30.0))  # the prepared rasters: the fine BEV level's targets
+    raster_rows = []
+    for row in graph_rows:
+        graph = LaneGraph(*(np.array(row[k], np.float32) for k in "xy"),
+                          *(np.array(row[k], np.int32) for k in ("src", "dst")))  # fmt: skip
+        mask, direction = rasterize(graph, grid)
+        raster_rows.append(
+            {"frame_id": row["frame_id"], "height": grid.shape[0], "width": grid.shape[1],
+             "resolution": grid.resolution, "line_width": grid.line_width, "mask": io.encode_mask(mask),
+             "direction": io.encode_raster(direction)}
+        )  # fmt: skip
     tables = {
         "frames": pa.Table.from_pylist(frame_rows, io.SCHEMAS["frames"]),
         "paths": pa.Table.from_pylist(path_rows, io.SCHEMAS["paths"]),
         "graphs": pa.Table.from_pylist(graph_rows, io.SCHEMAS["graphs"]),
+        "rasters": pa.Table.from_pylist(raster_rows, io.SCHEMAS["rasters"]),
     }
     io.write_shard(out, f"{split}__toy", tables)
     (out / "manifest.json").write_text(json.dumps({"root": str(raw)}))

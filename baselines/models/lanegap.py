@@ -17,6 +17,7 @@ from baselines.blocks import mean_over_processes, sigmoid_focal_loss
 from baselines.config import PRESETS, Config, DecoderConfig
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
+from baselines.fine_bev import fine_losses
 from baselines.matcher import hungarian_match
 from baselines.models import Built
 from baselines.query_decoder import QueryDecoder
@@ -35,7 +36,7 @@ class LaneGAP(nn.Module):
         self.encoder = BEVEncoder(config.encoder)
         self.decoder = QueryDecoder(
             dim, head.num_paths, head.path_points, head.bezier_points, head.layers, head.heads,
-            head.ffn_channels, head.dropout, head.deform_points,
+            head.ffn_channels, head.dropout, head.deform_points, head.fine_scale,
         )  # fmt: skip
         self.seg_head = (
             nn.Sequential(nn.Conv2d(dim, dim, 3, padding=1), nn.ReLU(True), nn.Conv2d(dim, 2, 1))
@@ -91,6 +92,10 @@ class LaneGAPLoss(nn.Module):
             seg_loss = torch.nan_to_num(seg_loss)  # a batch with no labelled cell
             total = total + config.seg_weight * seg_loss
             losses["seg"] = seg_loss.detach()
+        if "fine" in outputs:
+            fine = fine_losses(outputs["fine"], targets)
+            total = total + config.fine_weight * sum(fine.values())
+            losses.update({name: loss.detach() for name, loss in fine.items()})
         losses["loss"] = total
         return losses
 
@@ -131,5 +136,5 @@ def head(preset: str) -> DecoderConfig:
 
 
 def build(config: Config) -> Built:
-    needs = frozenset({"paths"})
+    needs = frozenset({"paths", "raster"} if config.decoder.fine_scale else {"paths"})
     return Built(LaneGAP(config), LaneGAPLoss(config.decoder), PostProcess(config), needs, "path")

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from baselines.config import Config
 from baselines.models import Built, preset_head
-from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess
+from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
 
 
 @dataclass
@@ -30,6 +30,8 @@ class MapTRConfig:
     point_weight: float = 5.0
     direction_weight: float = 0.005
     link_weight: float = 1.0
+    fine_scale: float = 0.0  # the fine BEV level and its loss (baselines/fine_bev.py), as LaneGAP's
+    fine_weight: float = 1.0
     max_link_pos_weight: float = 50.0  # the association loss's positive weight is clamped to this
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
@@ -38,7 +40,7 @@ class MapTRConfig:
 
 
 # Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP within
-# 3 % (LaneGAP: 37,976,700 paper, 1,120,731 tiny). Its decoder is LaneGAP's at the same widths; the
+# 3 % (LaneGAP: 37,976,700 paper, 1,150,799 tiny). Its decoder is LaneGAP's at the same widths; the
 # association head (about 0.2 M / 12 k) takes the place of LaneGAP's auxiliary segmentation head.
 
 
@@ -48,9 +50,13 @@ def paper_head() -> MapTRConfig:
 
 
 def tiny_head() -> MapTRConfig:
-    """1,097,498 parameters with the tiny encoder (camera); the layers and widths of LaneGAP's tiny head,
-    40 queries for at most 29 pieces a frame in the synthetic data."""
-    return MapTRConfig(num_pieces=40, layers=3, heads=4, ffn_channels=128, dropout=0.0, score_threshold=0.5)
+    """1,127,566 parameters with the tiny encoder (camera); the layers and widths of LaneGAP's tiny head,
+    and its fine BEV level (0.6 m cells; directed TOPO / Junction TOPO F1 on the learning check's split
+    0.312 / 0.309 against 0.092 / 0.035 without), 40 queries for at most 29 pieces a frame in the
+    synthetic data."""
+    return MapTRConfig(
+        num_pieces=40, layers=3, heads=4, ffn_channels=128, dropout=0.0, score_threshold=0.5, fine_scale=2.5
+    )
 
 
 def head(preset: str) -> MapTRConfig:
@@ -60,4 +66,4 @@ def head(preset: str) -> MapTRConfig:
 
 def build(config: Config) -> Built:
     loss = PieceCriterion(config, config.decoder.direction_weight)
-    return Built(PieceModel(config), loss, PiecePostProcess(config), frozenset({"pieces"}), "piece")
+    return Built(PieceModel(config), loss, PiecePostProcess(config), piece_needs(config), "piece")

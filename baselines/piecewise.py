@@ -6,7 +6,8 @@ links "piece i ends where piece j starts". The model: the shared BEV encoder, th
 regressing every piece in driving order, and STSU's association head scoring every ordered pair of
 queries as a link. The criterion (DETR's SetCriterion): per decoder layer, Hungarian matching, focal
 classification and L1 on the matched pieces; on the last layer, binary cross-entropy of the matched
-pairs' association logits against the prepared `piece_links`.
+pairs' association logits against the prepared `piece_links`; with a fine BEV level (the tiny preset),
+its lane and direction loss (fine_bev.py).
 """
 
 from __future__ import annotations

@@ -3,8 +3,9 @@
 
 The model: the shared BEV encoder, the hierarchical-query deformable decoder regressing every path as N
 ordered points (or K Bezier control points, paper Eq. 2), and an auxiliary BEV lane segmentation in
-training. The loss: paper Eq. 3 and 4. The post-processing: paths above the score threshold, in
-metres, through Path2Graph.
+training; with `fine_scale` (the tiny preset) the decoder also reads a fine BEV level (fine_bev.py). The
+loss: paper Eq. 3 and 4, plus the fine level's lane and direction loss. The post-processing: paths above
+the score threshold, in metres, through Path2Graph.
 """
 
 from __future__ import annotations

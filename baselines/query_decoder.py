@@ -102,17 +102,9 @@ class QueryDecoder(nn.Module):
         # all at the centre speeds up training.
         self.initial_reference = nn.Parameter(initial_lanes(instances, self.queries_per_instance))
         anchors = bezier_points if self.bezier else 1
+        levels = 2 if self.fine is not None else 1  # the coarse map, and the fine one
         self.layers = nn.ModuleList(
-            DecoderLayer(
-                dim,
-                heads,
-                ffn,
-                dropout,
-                deform_points,
-                anchors,
-                self.queries_per_instance,
-                1 + bool(fine_scale),
-            )  # fmt: skip
+            DecoderLayer(dim, heads, ffn, dropout, deform_points, anchors, self.queries_per_instance, levels)
             for _ in range(layers)
         )
         self.class_heads = nn.ModuleList(mlp(dim, 1, 2) for _ in range(layers))

@@ -32,6 +32,18 @@ CHECKS = [
     ("maptr", "fusion", 0.4, 0.0),
     ("stsu", "fusion", 0.4, 0.0),
 ]
+# MEASURED 2026-12-03, stop 25: MapTR and STSU at score threshold 0.7 (chosen on the training frames,
+# stop 24's sweep): MapTR 0.352 / 0.311, +0.029 / +0.043 (407 s); STSU 0.377 / 0.274, +0.054 / +0.006
+# (345 s); `pytest -k "maptr or stsu"` with LANEGRAPH_LEARNING_CHECK=1 alone: 2 failed in 13 min 30 s.
+# LaneGAP levers tried on this split (880 steps, fusion; the preset: 0.396 / 0.344, P 0.51, R 0.32):
+# Bezier head (5 control points) 0.417 / 0.327; 0.75 m LiDAR pillars 0.271 / 0.185 (0.394 / 0.355 at
+# threshold 0.4); a LiDAR ground raster (max / mean intensity, count) at 0.6 m into the fine level
+# 0.397 / 0.378; quality-aware class targets (exp(-d / 1 m) for the matched paths) 0.256 / 0.099 (0.355
+# at 0.2). Its training frames would choose threshold 0.6 (0.382; validation 0.380 against 0.396 at 0.5).
+# Recall limits it: with the match radius widened to 0.75 / 1 / 1.5 m the preset scores 0.451 / 0.488 /
+# 0.533, recall only 0.435 at 1.5 m; a quarter of the GT lane length lies > 2 m from any predicted path
+# (junction connectors, roundabouts). Drawn, its paths are jagged and mostly straight, and the fine
+# level's lane probability shows junctions and S-bends as blurred regions beyond ~15 m of the ego.
 # MEASURED 2026-12-03, stop 24, with the fine BEV level (baselines/fine_bev.py: the query decoders also
 # read the BEV features lifted to 0.6 m cells, trained by a dense lane + direction loss) and LaneGAP's
 # point weight 20 (`make test-learning` alone at 87befd4: 5 failed in 1,715 s), directed TOPO / Junction

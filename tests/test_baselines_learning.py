@@ -44,6 +44,9 @@ CHECKS = [
 # 0.533, recall only 0.435 at 1.5 m; a quarter of the GT lane length lies > 2 m from any predicted path
 # (junction connectors, roundabouts). Drawn, its paths are jagged and mostly straight, and the fine
 # level's lane probability shows junctions and S-bends as blurred regions beyond ~15 m of the ego.
+# Three times the steps (2,640) do not help the piece-wise models: STSU 0.351 / 0.299 at 0.7 (0.372 at
+# 0.8; 0.329 on its own training frames: it underfits), MapTR 0.305 / 0.297 (0.328 at 0.8). Gating STSU's
+# links by the gap from piece end to piece start (1-4 m) before Piece2Graph: +0.01 to +0.03 (not landed).
 # MEASURED 2026-12-03, stop 24, with the fine BEV level (baselines/fine_bev.py: the query decoders also
 # read the BEV features lifted to 0.6 m cells, trained by a dense lane + direction loss) and LaneGAP's
 # point weight 20 (`make test-learning` alone at 87befd4: 5 failed in 1,715 s), directed TOPO / Junction

@@ -34,7 +34,9 @@ CHECKS = [
 ]
 # MEASURED 2026-12-03, stop 25: MapTR and STSU at score threshold 0.7 (chosen on the training frames,
 # stop 24's sweep): MapTR 0.352 / 0.311, +0.029 / +0.043 (407 s); STSU 0.377 / 0.274, +0.054 / +0.006
-# (345 s); `pytest -k "maptr or stsu"` with LANEGRAPH_LEARNING_CHECK=1 alone: 2 failed in 13 min 30 s.
+# (345 s). `make test-learning` alone at 33c8377: 5 failed in 1,644 s, the same scores as above and stop
+# 24's; HDMapNet 444 s (its scores pass, its time does not), LaneGAP 413 s, LiDAR 201 s, MapTR 381 s,
+# STSU 344 s.
 # LaneGAP levers tried on this split (880 steps, fusion; the preset: 0.396 / 0.344, P 0.51, R 0.32):
 # Bezier head (5 control points) 0.417 / 0.327; 0.75 m LiDAR pillars 0.271 / 0.185 (0.394 / 0.355 at
 # threshold 0.4); a LiDAR ground raster (max / mean intensity, count) at 0.6 m into the fine level

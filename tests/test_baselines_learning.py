@@ -48,6 +48,9 @@ CHECKS = [
 # HDMapNet's 0.3 m mask (another run) 0.479 / 0.405 (still < 0.5; a head of that size adds ~0.26 s a step);
 # 3 more conv-BN-ReLU in the fine level (no time cost) 0.415 / 0.323 (P 0.67, R 0.30; snapped 0.432).
 # HDMapNet under bf16 autocast (this CPU has AVX512-BF16): 0.68 x the step time, but 0.435 / 0.327.
+# More road per frame (`cli synth` at 2 s / 3 s between frames, the same 10 x 20 frames; their own floors
+# 0.306 / 0.283 and 0.310 / 0.281): LaneGAP 0.412 / 0.401 (+0.106 / +0.118) and 0.378 / 0.325 (+0.068 /
+# +0.044): within the data draw's noise of the 1 s split's 0.396 / 0.344 (+0.074 / +0.064).
 # MEASURED 2026-12-03, stop 25: MapTR and STSU at score threshold 0.7 (chosen on the training frames,
 # stop 24's sweep): MapTR 0.352 / 0.311, +0.029 / +0.043 (407 s); STSU 0.377 / 0.274, +0.054 / +0.006
 # (345 s). `make test-learning` alone at 33c8377: 5 failed in 1,644 s, the same scores as above and stop

@@ -8,6 +8,11 @@ On the synthetic validation frames a constant graph scored as well as a trained 
   own ground truth: what the model knows of the world without this frame's sensors.
 - `constant_prior`: one training frame's ground-truth graph, the one that scores best (directed TOPO
   F1) on the training frames, predicted for every frame.
+
+And, beside the floor, `best_constant`: of the same candidate training graphs, the one that scores best
+on the evaluated frames themselves, an upper bound for any constant prediction (chosen in hindsight, so
+not a blind model's score). Which constant the training frames choose depends on the candidate pool;
+the learning checks therefore hold a model against this bound.
 """
 
 from __future__ import annotations
@@ -58,13 +63,48 @@ def other_log_partners(frames: list[dict]) -> dict[str, str]:
 
 def prior_cache_key(ground_truth: dict[str, LaneGraph], frame_ids: list[str], params: MetricParams) -> str:
     """A hash of everything the search depends on: the graphs it reads, the bounds, the thresholds."""
-    digest = hashlib.sha256(json.dumps([PRIOR_CANDIDATES, PRIOR_SCORED_FRAMES, params.as_dict()]).encode())
+    # "f1": the cache files' format (older ones held "train_f1" and are not read)
+    bounds = ["f1", PRIOR_CANDIDATES, PRIOR_SCORED_FRAMES, params.as_dict()]
+    digest = hashlib.sha256(json.dumps(bounds).encode())
     for frame_id in frame_ids:
         graph = ground_truth[frame_id]
         digest.update(frame_id.encode())
         for array in (graph.x, graph.y, graph.src, graph.dst):
             digest.update(np.asarray(array, np.float64).tobytes())
     return digest.hexdigest()[:16]
+
+
+def best_constant(
+    ground_truth: dict[str, LaneGraph],
+    candidates: list[str],
+    scored: list[str],
+    name: str,
+    params: MetricParams,
+    cache_dir: Path,
+) -> dict:
+    """Of the candidate frames' graphs, the one that, predicted for every scored frame (but itself),
+    has the best directed TOPO F1 (the first on ties): {"frame_id", "f1", ...}; read from / written to
+    cache_dir under `name`."""
+    key = prior_cache_key(ground_truth, sorted(set(candidates + scored)), params)
+    cache = Path(cache_dir) / f"{name}__{key}.json"
+    if cache.is_file():
+        return {**json.loads(cache.read_text()), "cached": True}
+    best_f1, best_id = -1.0, None
+    for candidate in candidates:
+        # a frame scored against itself is a perfect match that only the candidates in `scored` get
+        pairs = [(ground_truth[candidate], ground_truth[f]) for f in scored if f != candidate]
+        f1 = score_pairs(pairs, params)["directed"]["topo"]["f1"]
+        if f1 > best_f1:
+            best_f1, best_id = f1, candidate
+    found = {"frame_id": best_id, "f1": best_f1, "candidates": len(candidates), "scored_frames": len(scored)}
+    try:  # atomic: a concurrent eval reads the old file or the new one, never half of one
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        tmp = cache.with_name(f"{cache.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(found, indent=2) + "\n")
+        tmp.replace(cache)
+    except OSError:  # a read-only dataset: the search is redone next time, the result is the same
+        pass
+    return {**found, "cached": False}
 
 
 def search_constant_prior(
@@ -75,30 +115,31 @@ def search_constant_prior(
     cache_dir: Path,
 ) -> dict:
     """The training frame whose graph, predicted for the other scored training frames, has the best
-    directed TOPO F1 (the first on ties); read from / written to cache_dir."""
+    directed TOPO F1 (the first on ties); cached in cache_dir."""
     train_ids = sorted(train_ids)
     candidates, scored = spread(train_ids, PRIOR_CANDIDATES), spread(train_ids, PRIOR_SCORED_FRAMES)
-    key = prior_cache_key(ground_truth, sorted(set(candidates + scored)), params)
-    cache = Path(cache_dir) / f"constant_prior__{split}__{key}.json"
-    if cache.is_file():
-        return {**json.loads(cache.read_text()), "cached": True}
-    best_f1, best_id = -1.0, None
-    for candidate in candidates:
-        # a frame scored against itself is a perfect match that only the candidates in `scored` get
-        pairs = [(ground_truth[candidate], ground_truth[f]) for f in scored if f != candidate]
-        f1 = score_pairs(pairs, params)["directed"]["topo"]["f1"]
-        if f1 > best_f1:
-            best_f1, best_id = f1, candidate
-    prior = {"frame_id": best_id, "split": split, "train_f1": best_f1,
-             "candidates": len(candidates), "scored_frames": len(scored)}  # fmt: skip
-    try:  # atomic: a concurrent eval reads the old file or the new one, never half of one
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cache.with_name(f"{cache.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(prior, indent=2) + "\n")
-        tmp.replace(cache)
-    except OSError:  # a read-only dataset: the search is redone next time, the result is the same
-        pass
-    return {**prior, "cached": False}
+    found = best_constant(ground_truth, candidates, scored, f"constant_prior__{split}", params, cache_dir)
+    return {"frame_id": found["frame_id"], "split": split, "train_f1": found["f1"],
+            "candidates": found["candidates"], "scored_frames": found["scored_frames"],
+            "cached": found["cached"]}  # fmt: skip
+
+
+def search_best_constant(
+    ground_truth: dict[str, LaneGraph],
+    train_ids: list[str],
+    split: str,
+    evaluated: list[str],
+    params: MetricParams,
+    cache_dir: Path,
+) -> dict:
+    """The constant prior's candidates scored on the evaluated frames themselves: the best of them, the
+    best constant in hindsight (its F1 there is `hindsight_f1`)."""
+    candidates = spread(sorted(train_ids), PRIOR_CANDIDATES)
+    found = best_constant(ground_truth, candidates, sorted(evaluated), f"best_constant__{split}", params,
+                          cache_dir)  # fmt: skip
+    return {"frame_id": found["frame_id"], "split": split, "hindsight_f1": found["f1"],
+            "candidates": found["candidates"], "scored_frames": found["scored_frames"],
+            "cached": found["cached"]}  # fmt: skip
 
 
 def blind_floor(
@@ -111,7 +152,8 @@ def blind_floor(
     cache_dir: Path,
 ) -> dict:
     """metrics["floor"] without the margin: both blind baselines' scores and, per mode and metric, the
-    higher of their F1s. `predictions` are the model's own, per frame_id, of the evaluated `frames`."""
+    higher of their F1s; and the best constant in hindsight (not part of that floor). `predictions`
+    are the model's own, per frame_id, of the evaluated `frames`."""
     floor: dict = {"absent": {}}
     partners = other_log_partners(frames)
     if partners:
@@ -127,9 +169,14 @@ def blind_floor(
         prior = search_constant_prior(ground_truth, train_ids, train_split, params, cache_dir)
         pairs = [(ground_truth[prior["frame_id"]], ground_truth[f]) for f in sorted(predictions)]
         floor["constant_prior"] = {**prior, **without_params(score_pairs(pairs, params))}
+        best = search_best_constant(ground_truth, train_ids, train_split, sorted(predictions), params,
+                                    cache_dir)  # fmt: skip
+        pairs = [(ground_truth[best["frame_id"]], ground_truth[f]) for f in sorted(predictions)]
+        floor["best_constant"] = {**best, **without_params(score_pairs(pairs, params))}
     else:
-        floor["constant_prior"] = None
+        floor["constant_prior"] = floor["best_constant"] = None
         floor["absent"]["constant_prior"] = f"no frames in the training split {train_split!r}"
+        floor["absent"]["best_constant"] = floor["absent"]["constant_prior"]
     present = [floor[name] for name in ("other_log_sensors", "constant_prior") if floor[name]]
     floor["f1"] = None
     if present:
@@ -151,3 +198,16 @@ def floor_margins(metrics: dict) -> dict:
     if floor["f1"] is None:
         raise ValueError(f"no blind baseline could be scored: {floor['absent']}")
     return {mode: {m: metrics[mode][m]["f1"] - floor["f1"][mode][m] for m in METRICS} for mode in MODES}
+
+
+def contract_margins(metrics: dict) -> dict:
+    """The learning contract's margins, directed: {"sensors": F1 minus the F1 with another log's sensors
+    (TOPO), "best_constant": {metric: F1 minus the best constant's in hindsight}}; None where absent."""
+    floor = metrics.get("floor") or {}
+    other, best = floor.get("other_log_sensors"), floor.get("best_constant")
+    directed = metrics["directed"]
+
+    def margins(baseline: dict | None) -> dict | None:
+        return {m: directed[m]["f1"] - baseline["directed"][m]["f1"] for m in METRICS} if baseline else None
+
+    return {"sensors": margins(other), "best_constant": margins(best)}

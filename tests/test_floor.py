@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from baselines import floor as floor_module
 from baselines.evaluate import evaluate
-from baselines.floor import blind_floor, floor_margins, other_log_partners, spread
+from baselines.floor import blind_floor, contract_margins, floor_margins, other_log_partners, spread
 from benchmark.metrics import MetricParams
 from benchmark.score import graphs_from_table, read_graph_table, score_pairs
 from cli import app
@@ -93,7 +93,7 @@ def test_eval_writes_the_floor_and_the_margin(two_log_run):
     assert "margin" in result.output and "constant prior: the ground truth of av2/toy/" in result.output
     metrics = json.loads((run / "metrics.json").read_text())
     floor = metrics["floor"]
-    assert set(floor) == {"other_log_sensors", "constant_prior", "absent", "f1", "margin"}
+    assert set(floor) == {"other_log_sensors", "constant_prior", "best_constant", "absent", "f1", "margin"}
     assert floor["absent"] == {}
     # other log's sensors: the model's prediction for the partner frame, scored on the frame's own GT
     predictions = graphs_from_table(pq.read_table(run / "predictions.parquet"), run)
@@ -112,6 +112,28 @@ def test_eval_writes_the_floor_and_the_margin(two_log_run):
             assert floor["f1"][mode][metric] == best
             assert floor["margin"][mode][metric] == pytest.approx(metrics[mode][metric]["f1"] - best)
     assert floor_margins(metrics) == floor["margin"]
+    # the best constant in hindsight: of the same candidates, the best on the evaluated frames themselves
+    best = floor["best_constant"]
+    assert best["candidates"] == 4 and best["scored_frames"] == 4 and best["split"] == "train"
+    hindsight = {}
+    for candidate in (f"av2/toy/{i}" for i in range(4)):
+        pairs = [
+            (ground_truth[candidate], ground_truth[f"av2/toy/{i}"])
+            for i in range(4)
+            if i != int(candidate[-1])
+        ]
+        hindsight[candidate] = score_pairs(pairs, MetricParams(**metrics["metric_params"]))["directed"][
+            "topo"
+        ]["f1"]
+    assert best["hindsight_f1"] == max(hindsight.values())
+    assert hindsight[best["frame_id"]] == max(hindsight.values())
+    pairs = [(ground_truth[best["frame_id"]], ground_truth[f"av2/toy/{i}"]) for i in range(4)]
+    assert best["directed"] == score_pairs(pairs, MetricParams(**metrics["metric_params"]))["directed"]
+    margins = contract_margins(metrics)
+    for metric in ("topo", "junction_topo"):
+        f1 = metrics["directed"][metric]["f1"]
+        assert margins["sensors"][metric] == f1 - floor["other_log_sensors"]["directed"][metric]["f1"]
+        assert margins["best_constant"][metric] == f1 - best["directed"][metric]["f1"]
 
 
 def test_prior_search_is_cached_beside_the_data(two_log_run, monkeypatch):
@@ -127,13 +149,14 @@ def test_prior_search_is_cached_beside_the_data(two_log_run, monkeypatch):
 
     monkeypatch.setattr(floor_module, "score_pairs", counted)
     first = evaluate(run, device="cpu")["floor"]["constant_prior"]
-    # other log's sensors (4 frames), 4 candidates each on the 3 other frames, the prior (4 frames)
-    assert calls == [4, 3, 3, 3, 3, 4] and not first["cached"]
+    # other log's sensors (4 frames), 4 candidates each on the 3 other frames, the prior (4 frames);
+    # the same for the best constant in hindsight, on the evaluated frames
+    assert calls == [4, 3, 3, 3, 3, 4, 3, 3, 3, 3, 4] and not first["cached"]
     (written,) = cache.glob("constant_prior__train__*.json")
     assert json.loads(written.read_text())["frame_id"] == first["frame_id"]
     calls.clear()
     second = evaluate(run, device="cpu")["floor"]["constant_prior"]
-    assert calls == [4, 4] and second["cached"]
+    assert calls == [4, 4, 4] and second["cached"]
     assert {**first, "cached": True} == second
 
 

@@ -199,14 +199,9 @@ def tiny() -> Config:
             pillar_subdivision=1,
             lidar_blocks=1,
         ),
-        # score_threshold 0.5: chosen on the synthetic training frames after 480 steps (fusion, default
-        # `cli synth` data): directed TOPO F1 0.215 / 0.248 / 0.000 at 0.4 / 0.5 / 0.7. On the procedural
-        # worlds a short schedule rarely scores a path above 0.7 (0.7 suited the single old world).
-        # point_weight 20 and a fine BEV level at 0.6 m (fine_scale 2.5): on the learning check's split
-        # (880 steps, fusion) directed TOPO / Junction TOPO F1 0.384-0.396 / 0.344-0.365 against the
-        # paper's point weight 5 without it, 0.325 / 0.353, for 1.3 x the time per step (0.3 m, scale 5:
-        # 0.399-0.415 / 0.327-0.407 for 1.6 x). Point weight 20 alone: 0.306 / 0.264; on the decoder
-        # oracle 0.455 / 0.432 against 0.295-0.332 (tests/test_baselines_learning.py).
+        # score_threshold 0.5: chosen on the synthetic training frames; a short schedule rarely scores a
+        # path above 0.7. point_weight 20 with a fine BEV level at 0.6 m (fine_scale 2.5): the best of the
+        # levers measured within the CPU budget (docs/EXPERIMENTS.md, 2026-12-03).
         decoder=DecoderConfig(
             num_paths=32,
             path_points=20,
@@ -220,22 +215,19 @@ def tiny() -> Config:
         ),
         data=DataConfig(
             # The synthetic images are already 1/4 (nuScenes) and 1/8 (AV2) of the real sizes: 200 x 113
-            # and 256 x 194 pixels here (on real data set 0.125 for both). Halving the AV2 images cost
-            # HDMapNet 0.09 directed TOPO F1 on the learning check's split (0.403 against 0.490, 960 steps).
+            # and 256 x 194 pixels here (on real data set 0.125 for both); smaller AV2 images lose lanes
+            # (docs/EXPERIMENTS.md, 2026-12-02).
             image_scale_nuscenes=0.5,
             image_scale_av2=1.0,
             # the synthetic cameras look level: the top 40 % is sky, 19-26 pixels above the horizon kept
-            # (tests/test_camera_geometry.py); 1.4 x the training steps per second
+            # (tests/test_camera_geometry.py); no BEV point projects there: cropping it costs nothing
             image_crop_top=0.4,
             max_points=20_000,
             num_workers=0,
             cache_samples=True,
         ),
-        # batch 2, 11 epochs (880 steps): more, smaller steps learn more in the learning checks' 6 minutes.
-        # HDMapNet fusion on the check's split, directed TOPO / Junction TOPO F1 (floor 0.323 / 0.268):
-        # batch 4, 480 steps 0.363 / 0.305; batch 2, 960 steps 0.403 / 0.334 (images at 0.5 here);
-        # batch 2: 640 steps 0.471-0.480 / 0.365-0.387 (201 s), 800 steps 0.440 / 0.352, 880 steps 0.488
-        # / 0.392 (261-303 s), 960 steps 0.483 / 0.449 (319 s: past the check's 6 minutes with the data)
+        # batch 2, 11 epochs (880 steps): more, smaller steps learn more within the learning checks' CPU
+        # budget (docs/EXPERIMENTS.md, 2026-12-02).
         train=TrainConfig(
             epochs=11, batch_size=2, lr=2e-3, backbone_lr_mult=1.0, warmup_iters=50, amp=False, threads=2
         ),

@@ -65,9 +65,8 @@ def paper_head() -> HDMapNetConfig:
 
 def tiny_head() -> HDMapNetConfig:
     """1,102,732 parameters with the tiny encoder (camera). Output cells of 0.3 m (200 x 100 for 30 x 60
-    m): 0.38 training steps/s at 0.15 m on 2 CPU cores; the GT raster pooled to 0.3 m scores directed
-    TOPO / Junction TOPO F1 0.722 / 0.792 through Pixel2Graph against 0.751 / 0.825 at 0.15 m (AV2
-    format, default `cli synth` data, every other frame)."""
+    m): a quarter of the cost of the prepared rasters' 0.15 m, for a small loss in the ground truth's
+    round trip through Pixel2Graph (docs/EXPERIMENTS.md)."""
     return HDMapNetConfig(width=12, resolution=0.3)
 
 

@@ -51,10 +51,9 @@ def paper_head() -> MapTRConfig:
 
 def tiny_head() -> MapTRConfig:
     """1,127,566 parameters with the tiny encoder (camera); the layers and widths of LaneGAP's tiny head,
-    and its fine BEV level (0.6 m cells; directed TOPO / Junction TOPO F1 on the learning check's split
-    0.312 / 0.309 at threshold 0.5, against 0.092 / 0.035 without), 40 queries for at most 29 pieces a
-    frame in the synthetic data. Score threshold 0.7, chosen on the check's training frames (directed TOPO
-    F1 0.264 / 0.308 / 0.325 at 0.5 / 0.6 / 0.7): its limit is precision."""
+    and its fine BEV level (0.6 m cells, without which it barely learns in the CPU budget), 40 queries for
+    at most 29 pieces a frame in the synthetic data. Score threshold 0.7, chosen on the learning check's
+    training frames: its limit is precision (docs/EXPERIMENTS.md)."""
     return MapTRConfig(
         num_pieces=40, layers=3, heads=4, ffn_channels=128, dropout=0.0, score_threshold=0.7, fine_scale=2.5
     )

@@ -27,7 +27,7 @@ demo: $(STAMP)
 
 # The learning checks run alone: their 6-minute budgets are wall time on both cores, so plain
 # `pytest -n 2 tests` skips them unless LANEGRAPH_LEARNING_CHECK=1. They are not in `make test` while
-# only HDMapNet reaches its bars (tests/test_baselines_learning.py says what was measured).
+# only HDMapNet reaches its bars (docs/EXPERIMENTS.md says what was measured).
 test: $(STAMP)
 	$(PY) -m pytest -n 2 tests
 

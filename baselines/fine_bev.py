@@ -2,11 +2,12 @@
 which the deformable attention reads beside the coarse map, and the dense loss that trains them.
 
 Why: the tiny preset's BEV cells are 1.5 m, three times the metric's 0.45 m match radius, and a point
-regressed from them lands 0.5-1 m off its lane; the decoder's sparse gradient alone does not teach the
-encoder where the paint lies inside a cell nor which way a lane runs. The features upsampled (bilinear)
-by the scale and one 3x3 convolution make the fine level; a 1x1 head on it regresses the lane mask and
-the travel direction against the prepared raster (baselines/raster_targets.py, as HDMapNet's branches),
-in training only. The paper's own grid (0.3 m cells) needs no fine level.
+regressed from them often lands beyond that radius (docs/EXPERIMENTS.md); the decoder's sparse
+gradient alone does not teach the encoder where the paint lies inside a cell nor which way a lane runs.
+The features upsampled (bilinear) by the scale and one 3x3 convolution make the fine level; a 1x1 head
+on it regresses the lane mask and the travel direction against the prepared raster
+(baselines/raster_targets.py, as HDMapNet's branches), in training only. The paper's own grid (0.3 m
+cells) needs no fine level.
 """
 
 from __future__ import annotations

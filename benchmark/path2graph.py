@@ -8,10 +8,9 @@
    directions within MERGE_MAX_ANGLE) are merged, nearest pairs first, into one vertex at their mean
    that inherits all their predecessors and successors; a merged vertex never takes two vertices of
    the same path. Lanes that cross pass within merge_radius too: merging them would join two lanes
-   that never meet (directed TOPO F1 of 20-point ground-truth paths with 0.01-0.3 m of noise: +0.04 to
-   +0.06 with the direction check). "Different paths" means different connected pieces after
-   step 2: paths that already share a vertex meet where they truly meet, and merging their nearby
-   vertices would only blur a fork or a merge.
+   that never meet (docs/EXPERIMENTS.md measures the direction check). "Different paths" means
+   different connected pieces after step 2: paths that already share a vertex meet where they truly
+   meet, and merging their nearby vertices would only blur a fork or a merge.
 4. Self-loops and repeated edges are dropped.
 Coordinates stay float64. docs/METRICS.md explains the round trip of the ground truth (1.000).
 """

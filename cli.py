@@ -249,14 +249,20 @@ def print_scores(result: dict, title: str, as_json: bool) -> None:
     from rich.table import Table
 
     table = Table(title=f"{title} ({result['frames']} frames, metric_version {result['metric_version']})")
-    for column in ("", "precision", "recall", "F1"):
+    drawn = result.get("bootstrap")
+    for column in ("", "precision", "recall", "F1") + (("F1 interval",) if drawn else ()):
         table.add_column(column)
     for mode in ("directed", "undirected"):
         for name, metric in (("TOPO", "topo"), ("Junction TOPO", "junction_topo")):
             values = result[mode][metric]
-            table.add_row(f"{mode} {name}", *(f"{values[k]:.3f}" for k in ("precision", "recall", "f1")))
+            cells = [f"{values[k]:.3f}" for k in ("precision", "recall", "f1")]
+            cells += ["{:.3f}-{:.3f}".format(*values["f1_ci"])] if drawn else []
+            table.add_row(f"{mode} {name}", *cells)
     table.add_row("mIoU", "", "", f"{result['miou']:.3f}")
     Console().print(table)
+    if drawn:
+        typer.echo(f"F1 interval: the 95 % interval of a bootstrap of {drawn['draws']} draws over the frames "
+                   f"(seed {drawn['seed']})")  # fmt: skip
 
 
 @app.command()
@@ -275,6 +281,9 @@ def score(
     matching: str = typer.Option("greedy", help="greedy (by distance) or optimal (maximum cardinality)"),
     range_: str = typer.Option(None, "--range", help="mIoU grid WIDTHxLENGTH (default: the dataset's)"),
     workers: int = typer.Option(1, help="Worker processes (0: one per core)"),
+    bootstrap: int = typer.Option(
+        1000, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
+    ),
 ) -> None:
     """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md);
     the JSON records the thresholds and metric_version. Predictions of `cli eval` made by a model trained
@@ -285,7 +294,7 @@ def score(
     if range_:
         params["bev_range"] = range_
     with reported_errors():
-        result = run_score(pred, gt, out, workers=workers, **params)
+        result = run_score(pred, gt, out, workers=workers, bootstrap=bootstrap, **params)
     print_scores(result, f"{pred} against {gt}", as_json)
 
 

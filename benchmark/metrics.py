@@ -865,6 +865,12 @@ class FractionSum:
         return math.fsum(self.numerators[s] / s)
 
 
+# The columns of a per-frame count table (TopoCounts.vector of each mode): precision sum and its
+# denominator, recall sum and its denominator, then the same four of Junction TOPO.
+FRAME_FIELDS = ("pre", "n_pred", "rec", "n_gt", "junction_pre", "n_anchored", "junction_rec", "n_junctions")
+FRAME_COLUMNS = tuple(f"{mode}.{name}" for mode in ("directed", "undirected") for name in FRAME_FIELDS)
+
+
 @dataclass
 class TopoCounts:
     """The sums of one mode (directed or undirected) over the frames added so far."""
@@ -881,6 +887,11 @@ class TopoCounts:
     def add(self, other: TopoCounts) -> None:
         for name, value in vars(other).items():
             setattr(self, name, getattr(self, name) + value)
+
+    def vector(self) -> list[float]:
+        """The sums as numbers, in FRAME_FIELDS order: one frame's row of the bootstrap's count table."""
+        return [self.pre.value(), self.n_pred, self.rec.value(), self.n_gt, self.junction_pre.value(),
+                self.n_anchored, self.junction_rec.value(), self.n_junctions]  # fmt: skip
 
     def scores(self) -> dict:
         return {
@@ -1004,12 +1015,14 @@ class Totals:
     directed: TopoCounts = field(default_factory=TopoCounts)
     undirected: TopoCounts = field(default_factory=TopoCounts)
     iou: IouCounts = field(default_factory=IouCounts)
+    rows: list[list[float]] = field(default_factory=list)  # per frame, in order: FRAME_COLUMNS
 
     def add_frame(self, pred: LaneGraph, gt: LaneGraph) -> None:
         counts = frame_counts(pred, gt, self.params)
         self.directed.add(counts["directed"])
         self.undirected.add(counts["undirected"])
         self.iou.add(iou_counts(pred, gt, self.params))
+        self.rows.append(counts["directed"].vector() + counts["undirected"].vector())
         self.frames += 1
 
     def add(self, other: Totals) -> None:
@@ -1017,6 +1030,11 @@ class Totals:
         self.directed.add(other.directed)
         self.undirected.add(other.undirected)
         self.iou.add(other.iou)
+        self.rows += other.rows
+
+    def frame_table(self) -> np.ndarray:
+        """(frames, len(FRAME_COLUMNS)) float64: each frame's sums, in the order the frames were added."""
+        return np.array(self.rows, np.float64).reshape(len(self.rows), len(FRAME_COLUMNS))
 
     def result(self) -> dict:
         return {

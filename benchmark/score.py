@@ -22,6 +22,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as ds
 
+from benchmark.bootstrap import add_intervals, check_draws
 from benchmark.metrics import METRIC_VERSION, MetricParams, Totals
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
@@ -132,9 +133,20 @@ def _score_chunk(chunk: list[tuple[LaneGraph, LaneGraph]], params: MetricParams)
     return totals
 
 
-def score_pairs(pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1) -> dict:
+def score_pairs(
+    pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1, bootstrap: int = 0
+) -> dict:
     """The result dict for (pred, gt) graphs, one pair per frame, in `workers` processes (0: one per
-    core)."""
+    core); with `bootstrap` draws, a 95 % interval beside each F1 (benchmark/bootstrap.py)."""
+    result, counts = score_frames(pairs, params, workers)
+    return add_intervals(result, counts, bootstrap)
+
+
+def score_frames(
+    pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1
+) -> tuple[dict, np.ndarray]:
+    """(score_pairs' result without intervals, each pair's counts: (frames, FRAME_COLUMNS) in pair
+    order)."""
     workers = workers if workers > 0 else os.cpu_count() or 1
     totals = Totals(params)
     if workers <= 1 or len(pairs) < 2 * workers:
@@ -145,7 +157,7 @@ def score_pairs(pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, 
         with ProcessPoolExecutor(workers) as pool:
             for part in pool.map(_score_chunk, chunks, [params] * len(chunks)):
                 totals.add(part)  # exact sums: the chunking does not change a digit
-    return {**totals.result(), "metric_version": METRIC_VERSION}
+    return {**totals.result(), "metric_version": METRIC_VERSION}, totals.frame_table()
 
 
 def dataset_targets(data: Path) -> dict:
@@ -186,12 +198,17 @@ def write_result(result: dict, out: Path | None) -> None:
         io.write_json(Path(out), result)
 
 
-def score(pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, **params) -> dict:
-    """Score a prediction graph table against the ground truth; params are MetricParams fields.
+def score(
+    pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, bootstrap: int = 0,
+    **params,
+) -> dict:  # fmt: skip
+    """Score a prediction graph table against the ground truth; params are MetricParams fields;
+    `bootstrap` draws over the frames give each F1 its 95 % interval (0: none; `cli score`: DRAWS).
 
     Every ground-truth frame is scored; one with no prediction row counts as an empty prediction, a
     predicted frame that is not in the ground truth is refused.
     """
+    check_draws(bootstrap)
     params.setdefault("bev_range", default_range(gt_path))
     metric_params = MetricParams(**params)
     pred_table = read_graph_table(pred_path)
@@ -203,7 +220,7 @@ def score(pred_path: Path, gt_path: Path, out: Path | None = None, workers: int 
     if unknown:
         raise GraphTableError(f"{pred_path}: frame {unknown[0]} is not in the ground truth {gt_path}")
     pairs = [(pred.get(f, LaneGraph.empty()), gt[f]) for f in sorted(gt)]
-    result = score_pairs(pairs, metric_params, workers)
+    result = score_pairs(pairs, metric_params, workers, bootstrap)
     result.update(pred=str(pred_path), gt=str(gt_path), frames_predicted=len(pred))
     write_result(result, out)
     return result

@@ -139,7 +139,8 @@ def test_cli_score_prints_and_writes_the_json(gt_file, tmp_path):
     lines = run.stdout.splitlines()
     assert len(lines) < 15 and any("directed Junction TOPO" in line for line in lines)
     topo_f1 = json.loads(out.read_text())["directed"]["topo"]["f1"]
-    assert [line for line in lines if "directed TOPO" in line][0].split()[-2] == f"{topo_f1:.3f}"
+    cells = [line for line in lines if "directed TOPO" in line][0].split()
+    assert (cells[-4], cells[-2]) == (f"{topo_f1:.3f}", "1.000-1.000")  # F1 and its interval
     run = CliRunner().invoke(app, ["score", "--pred", str(gt_file), "--gt", str(gt_file), "--json"])
     assert json.loads(run.stdout) == json.loads(out.read_text())
     bad = write(tmp_path / "bad.parquet", [row("f/nope", LANE)])

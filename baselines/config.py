@@ -234,7 +234,32 @@ def tiny() -> Config:
     )
 
 
-PRESETS = {"paper": paper, "tiny": tiny}
+def gpu() -> Config:
+    """One CUDA GPU (`make gpu-check`): the paper's 0.3 m BEV cells and decoder sizes on the synthetic
+    data's images (the tiny preset's scales and crop), a ResNet-18 camera branch (no pretrained weights
+    can be had here), bf16 autocast, and one schedule for every model."""
+    return Config(
+        preset="gpu",
+        encoder=EncoderConfig(
+            modality="fusion",
+            bev_h=200,
+            bev_w=100,
+            channels=256,
+            backbone="resnet18",
+            backbone_frozen_stages=0,
+            backbone_norm_eval=False,
+            feature_stride=8,
+            camera_heights=(0.0,),
+            kernel_size=(3, 3),
+            max_views=2,
+        ),
+        decoder=DecoderConfig(),
+        data=dataclasses.replace(tiny().data, num_workers=0),
+        train=TrainConfig(epochs=16, batch_size=8, lr=1e-3, backbone_lr_mult=1.0, warmup_iters=100),
+    )
+
+
+PRESETS = {"paper": paper, "tiny": tiny, "gpu": gpu}
 
 
 def model_head(model: str, preset: str) -> Any:

@@ -433,7 +433,13 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
         "steps": trainer.step,
         "train_seconds": train_seconds,
         "steps_per_s": train_steps / train_seconds if train_seconds else 0.0,
+        "samples_per_s": train_steps * train_config.batch_size / train_seconds if train_seconds else 0.0,
     }
+    if device.type == "cuda":  # this process's peak; every rank holds the same model and batch size
+        summary["gpu_memory_gib"] = torch.cuda.max_memory_allocated(device) / 2**30
+    if master:
+        run = json.loads((out_dir / "run.json").read_text())
+        io.write_json(out_dir / "run.json", {**run, "summary": summary})
     if distributed:
         dist.barrier()
         dist.destroy_process_group()

@@ -72,7 +72,7 @@ def tiny_head() -> HDMapNetConfig:
 
 def head(preset: str) -> HDMapNetConfig:
     """HDMapNet's head config of a preset (`baselines.models.HEADS`)."""
-    return preset_head("HDMapNet", {"paper": paper_head, "tiny": tiny_head}, preset)
+    return preset_head("HDMapNet", {"paper": paper_head, "tiny": tiny_head, "gpu": paper_head}, preset)
 
 
 def raster_shape(config: Config) -> tuple[int, int]:

@@ -61,7 +61,7 @@ def tiny_head() -> MapTRConfig:
 
 def head(preset: str) -> MapTRConfig:
     """MapTR's head config of a preset (`baselines.models.HEADS`)."""
-    return preset_head("MapTR", {"paper": paper_head, "tiny": tiny_head}, preset)
+    return preset_head("MapTR", {"paper": paper_head, "tiny": tiny_head, "gpu": paper_head}, preset)
 
 
 def build(config: Config) -> Built:

@@ -66,7 +66,7 @@ def tiny_head() -> STSUConfig:
 
 def head(preset: str) -> STSUConfig:
     """STSU's head config of a preset (`baselines.models.HEADS`)."""
-    return preset_head("STSU", {"paper": paper_head, "tiny": tiny_head}, preset)
+    return preset_head("STSU", {"paper": paper_head, "tiny": tiny_head, "gpu": paper_head}, preset)
 
 
 def arc_length_parameters(points: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,165 @@
+"""GPU acceptance in one command (`make gpu-check`): on one CUDA GPU, `cli synth` with enough frames for a
+real schedule -> `cli prepare` -> `cli train` of all four models under the `gpu` preset (one schedule
+for all) -> `cli eval` -> `cli report`, then one table of the paper's claims against their bars.
+
+Bars (each model, directed F1 on the validation world that no training log drives): it reads its
+sensors (its TOPO F1 minus with another log's sensors) by >= 0.15 and beats the best constant in
+hindsight by >= 0.15 TOPO F1; LaneGAP reaches 0.5 TOPO F1; the whole run takes at most 10 minutes.
+Whether LaneGAP leads on Junction TOPO F1 (the paper's claim) is reported either way.
+
+`--smoke` (`make gpu-smoke`, in CI): the same commands and code path on tiny data, one epoch per model,
+on whatever device there is; it fails unless every output exists and every score is finite.
+
+    python -m baselines.gpu_check [--out gpu_check] [--smoke] [--epochs N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+MODELS = ("lanegap", "hdmapnet", "maptr", "stsu")
+SENSOR_GAP = CONSTANT_MARGIN = 0.15
+LANEGAP_TOPO = 0.5
+WALL_SECONDS = 600
+# Synthetic data: 10 logs (3/4 train) of 60 frames 0.4 s apart; smoke: 8 logs of 2 frames.
+DATA = {"logs": 10, "frames-per-log": 60, "frame-period": 0.4}
+SMOKE_DATA = {"logs": 8, "frames-per-log": 2, "frame-period": 1.0}
+
+console = Console()
+
+
+def cli(*args: str) -> None:
+    """One `cli` command in its own process, as a user runs it; its failure ends the check."""
+    command = [sys.executable, "-m", "cli", *args]
+    console.print(f"[bold]$ cli {' '.join(args)}[/bold]")
+    subprocess.run(command, check=True, cwd=Path(__file__).resolve().parent.parent)
+
+
+def contract_row(model: str, run: Path) -> dict:
+    """The figures of one evaluated run: directed F1s, the sensor gap, the margin over the best constant,
+    training speed and GPU memory."""
+    metrics = json.loads((run / "metrics.json").read_text())
+    summary = json.loads((run / "run.json").read_text()).get("summary", {})
+    floor = metrics["floor"]
+    directed = {m: metrics["directed"][m]["f1"] for m in ("topo", "junction_topo")}
+    other = floor["other_log_sensors"]["directed"]["topo"]["f1"]
+    best = floor["best_constant"]["directed"]
+    return {
+        "model": model,
+        "topo": directed["topo"],
+        "junction_topo": directed["junction_topo"],
+        "sensor_gap": directed["topo"] - other,
+        "over_best_constant": directed["topo"] - best["topo"]["f1"],
+        "best_constant": best["topo"]["f1"],
+        "samples_per_s": summary.get("samples_per_s", float("nan")),
+        "gpu_memory_gib": summary.get("gpu_memory_gib", float("nan")),
+        "device": metrics.get("device", "?"),
+    }
+
+
+def bars(rows: list[dict], seconds: float) -> list[tuple[str, bool]]:
+    """(what, passed) for every bar of the check."""
+    checks = []
+    for row in rows:
+        checks.append(
+            (f"{row['model']} reads its sensors by >= {SENSOR_GAP}", row["sensor_gap"] >= SENSOR_GAP)
+        )
+        checks.append((
+            f"{row['model']} beats the best constant by >= {CONSTANT_MARGIN}",
+            row["over_best_constant"] >= CONSTANT_MARGIN,
+        ))  # fmt: skip
+    lanegap = next(row for row in rows if row["model"] == "lanegap")
+    checks.append((f"LaneGAP directed TOPO F1 >= {LANEGAP_TOPO}", lanegap["topo"] >= LANEGAP_TOPO))
+    checks.append((f"wall time <= {WALL_SECONDS} s", seconds <= WALL_SECONDS))
+    return checks
+
+
+def smoke_failures(out: Path, rows: list[dict]) -> list[str]:
+    """What is missing or not finite after a smoke run."""
+    failures = []
+    for model in MODELS:
+        for name in ("checkpoint.pt", "predictions.parquet", "metrics.json", "run.json"):
+            if not (out / "runs" / model / name).is_file():
+                failures.append(f"missing {out / 'runs' / model / name}")
+    if not (out / "report" / "report.md").is_file():
+        failures.append(f"missing {out / 'report' / 'report.md'}")
+    for row in rows:
+        for key in ("topo", "junction_topo", "sensor_gap", "over_best_constant", "samples_per_s"):
+            if not math.isfinite(row[key]):
+                failures.append(f"{row['model']}: {key} is {row[key]}")
+    return failures
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("gpu_check"))
+    parser.add_argument("--smoke", action="store_true", help="tiny data, one epoch per model, any device")
+    parser.add_argument("--epochs", type=int, help="default: the gpu preset's (1 with --smoke)")
+    args = parser.parse_args()
+
+    start = time.perf_counter()
+    out = args.out.resolve()
+    if out.exists():
+        shutil.rmtree(out)
+    data = SMOKE_DATA if args.smoke else DATA
+    cli("synth", "--out", str(out / "raw"), *(f"--{key}={value}" for key, value in data.items()))
+    prepared = out / "prepared"
+    cli("prepare", "--dataset", "av2", "--root", str(out / "raw" / "av2" / "sensor"), "--out", str(prepared))
+    epochs = args.epochs or (1 if args.smoke else None)
+    for model in MODELS:
+        run = out / "runs" / model
+        schedule = ["--epochs", str(epochs)] if epochs else []
+        cli(
+            "train",
+            "--model",
+            model,
+            "--preset",
+            "gpu",
+            "--data",
+            str(prepared),
+            "--out",
+            str(run),
+            *schedule,
+        )
+        cli("eval", "--run", str(run), "--data", str(prepared), "--split", "val")
+    cli("report", "--runs", str(out / "runs"), "--out", str(out / "report"))
+    seconds = time.perf_counter() - start
+
+    rows = [contract_row(model, out / "runs" / model) for model in MODELS]
+    table = Table(title=f"gpu preset on synthetic data, {rows[0]['device']}: {seconds:.0f} s in all")
+    for column in ("model", "TOPO F1", "J-TOPO F1", "sensor gap", "best constant", "over it", "samples/s",
+                   "GPU GiB"):  # fmt: skip
+        table.add_column(column, justify="left" if column == "model" else "right")
+    for row in rows:
+        table.add_row(row["model"], *(f"{row[k]:.3f}" for k in ("topo", "junction_topo", "sensor_gap",
+                      "best_constant", "over_best_constant")), f"{row['samples_per_s']:.1f}",
+                      f"{row['gpu_memory_gib']:.1f}")  # fmt: skip
+    console.print(table)
+    leader = max(rows, key=lambda row: row["junction_topo"])["model"]
+    console.print(
+        f"Junction TOPO F1 is led by {leader} (the paper's claim: LaneGAP). Report: {out / 'report'}"
+    )
+    if args.smoke:
+        failures = smoke_failures(out, rows)
+        for failure in failures:
+            console.print(f"[red]smoke: {failure}[/red]")
+        console.print("smoke: every output exists, every score is finite" if not failures else "smoke FAILED")
+        return 1 if failures else 0
+    checks = bars(rows, seconds)
+    for what, passed in checks:
+        console.print(f"{'PASS' if passed else 'FAIL'}  {what}")
+    return 0 if all(passed for _, passed in checks) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

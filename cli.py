@@ -1,17 +1,44 @@
 """Command line of the lane-graph pipeline: synth, prepare, train, eval, score, roundtrip, report, viz.
 
-Heavy modules (torch, av2, nuscenes) are imported inside the commands so that `cli --help` is instant.
+Heavy modules (torch, av2, nuscenes) are imported inside the commands so that `cli --help` is instant;
+choices and ranges are checked by click before a command starts. Every command that prints a result
+table takes --json (the result as one JSON line on stdout instead) and says which paths it wrote.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Literal
 
 import typer
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
+HELP = """Online lane graph construction (LaneGAP): training targets from nuScenes and Argoverse 2 maps,
+four baselines (HDMapNet, STSU, MapTR, LaneGAP) under one encoder, and the TOPO and Junction TOPO
+lane-graph metrics.
+
+\b
+Examples:
+  cli synth --out demo/raw
+  cli prepare --dataset av2 --root demo/raw/av2/sensor --out demo/prepared/av2
+"""
+app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help=HELP)
+
+# The choices of `cli train`, which must not import torch to list them (tests/test_cli_help.py compares
+# them with baselines/config.py and baselines/models).
+Model = Literal["lanegap", "hdmapnet", "maptr", "stsu"]
+Preset = Literal["paper", "tiny", "gpu"]
+Modality = Literal["camera", "lidar", "fusion"]
+PRESET_DEFAULTS = {  # the presets' values of the `cli train` options that default to them
+    "epochs": "paper 24, tiny 11, gpu 16",
+    "batch_size": "paper 32, tiny 2, gpu 8",
+    "modality": "paper camera, tiny fusion, gpu fusion",
+    "path_points": "paper 30, tiny 20, gpu 30",
+}
+PATH_POINTS = Literal[10, 20, 30, 40]  # the paper's counts of points per path (Tab. 8)
+JSON_HELP = "Print the result as one JSON line instead of the tables (for scripts)"
 
 
 @contextmanager
@@ -19,7 +46,7 @@ def reported_errors():
     """Bad input (DataError is a ValueError) ends the command with its message and exit code 1."""
     try:
         yield
-    except (ValueError, FileNotFoundError) as error:
+    except (ValueError, FileNotFoundError, FileExistsError) as error:
         message = str(error)
         if "Original Traceback" in message:  # re-raised from a DataLoader worker: its last line says it
             message = message.strip().splitlines()[-1].partition(": ")[2]
@@ -27,31 +54,74 @@ def reported_errors():
         raise typer.Exit(1) from error
 
 
+def positive(value: float | None) -> float | None:
+    """Callback of the options that must be greater than 0 (typer's ranges include their bound)."""
+    if value is not None and value <= 0:
+        raise typer.BadParameter(f"{value} is not in the range x>0.")
+    return value
+
+
+def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[str] = ()) -> None:
+    """A command's end: with --json its result as one JSON line on stdout (and what it wrote on stderr);
+    else its (heading, table) pairs, notes and the paths it wrote."""
+    written = f"wrote {', '.join(str(path) for path in wrote)}" if wrote else ""
+    if as_json:
+        typer.echo(json.dumps(result))
+        if written:
+            typer.echo(written, err=True)
+        return
+    from rich.console import Console
+    from rich.text import Text
+
+    console = Console()
+    for heading, table in tables:
+        console.print(Text(heading, style="bold"), soft_wrap=True)  # a table's title wraps at its width
+        console.print(table)
+    for line in [*notes, written]:
+        if line:
+            console.print(Text(line), soft_wrap=True)
+
+
 @app.command()
 def synth(
-    out: Path = typer.Option(..., help="Folder to write <out>/av2/sensor/... and <out>/nuscenes/..."),
-    logs: int = typer.Option(10, help="Logs (AV2) / scenes (nuScenes) to write: 3/4 train, the rest val"),
-    frames_per_log: int = typer.Option(20, help="Key frames per log"),
-    frame_period: float = typer.Option(1.0, help="Seconds between key frames (a multiple of 0.02)"),
-    worlds: int = typer.Option(4, help="Procedural worlds (1-4), one nuScenes map location / AV2 city each"),
-    val_worlds: int = typer.Option(1, help="Worlds that only validation logs drive in (unseen geography)"),
-    seed: int = typer.Option(0, help="Random seed of the worlds, routes and sensors: same seed, same bytes"),
+    out: Path = typer.Option(..., help="Folder to write OUT/av2/sensor/... and OUT/nuscenes/... into"),
+    logs: int = typer.Option(
+        10,
+        min=1,
+        max=10,
+        help="Logs (AV2) / scenes (nuScenes): 3/4 train, the rest val (nuScenes mini's names)",
+    ),
+    frames_per_log: int = typer.Option(20, min=1, help="Key frames per log"),
+    frame_period: float = typer.Option(1.0, min=0.02, help="Seconds between key frames, a multiple of 0.02"),
+    worlds: int = typer.Option(
+        4, min=1, max=4, help="Procedural worlds, one nuScenes map location / AV2 city each"
+    ),
+    val_worlds: int = typer.Option(
+        1, min=1, help="Worlds that only validation logs drive in (unseen geography), fewer than --worlds"
+    ),
+    seed: int = typer.Option(
+        0, min=0, help="Random seed of the worlds, routes and sensors: same seed, same bytes"
+    ),
     sensors: bool = typer.Option(True, help="Also render camera images and LiDAR sweeps"),
+    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Write a synthetic raw dataset in the real AV2 and nuScenes on-disk formats; the defaults are the
-    learning checks' data (10 logs x 20 frames 1 s apart, validation on a world of its own)."""
+    learning checks' data (10 logs x 20 frames, validation on a world of its own).
+
+    \b
+    Examples:
+      cli synth --out demo/raw
+      cli synth --out tiny/raw --logs 2 --frames-per-log 3 --worlds 2 --no-sensors
+    """
+    from pipeline.synth import summary_table
     from pipeline.synth import synth as write_synth
 
-    write_synth(
-        out,
-        logs=logs,
-        frames_per_log=frames_per_log,
-        seed=seed,
-        sensors=sensors,
-        frame_period=frame_period,
-        worlds=worlds,
-        val_worlds=val_worlds,
-    )
+    with reported_errors():
+        summary = write_synth(out, logs=logs, frames_per_log=frames_per_log, seed=seed, sensors=sensors,
+                              frame_period=frame_period, worlds=worlds, val_worlds=val_worlds)  # fmt: skip
+    heading = f"synth: {len(summary['worlds'])} worlds, seed {summary['seed']}"
+    wrote = [out / summary["av2_root"], out / summary["nuscenes_root"], out / "synth.json"]
+    finish(summary, [(heading, summary_table(summary))], wrote, as_json)
 
 
 @contextmanager
@@ -68,39 +138,55 @@ def missing_ray():
 
 @app.command()
 def prepare(
-    dataset: str = typer.Option(..., help="av2 or nuscenes"),
+    dataset: Literal["av2", "nuscenes"] = typer.Option(..., help="The raw dataset's format"),
     root: Path = typer.Option(..., help="AV2: the folder holding train/, val/, ... ; nuScenes: the dataroot"),
     out: Path = typer.Option(..., help="Output folder of the prepared Parquet dataset"),
     version: str = typer.Option(
         "v1.0-trainval", help="nuScenes table version (v1.0-mini, v1.0-trainval, ...)"
     ),
-    split: str = typer.Option(None, help="Prepare one split (train, val, ...); default: all"),
-    range_: str = typer.Option("30x60", "--range", help="Perception range WIDTHxLENGTH in metres (x by y)"),
-    workers: int = typer.Option(1, help="Worker processes, one log at a time each (ray: the local CPUs)"),
-    executor: str = typer.Option("local", help="local (this machine) or ray (one Ray task per log)"),
+    split: str = typer.Option(None, show_default="all", help="Prepare one split (train, val, ...)"),
+    range_: str = typer.Option(
+        "30x60", "--range", metavar="WIDTHxLENGTH", help="Perception range in metres (x by y)"
+    ),
+    workers: int = typer.Option(
+        1, min=1, help="Worker processes, one log at a time each (ray: the local CPUs)"
+    ),
+    executor: Literal["local", "ray"] = typer.Option(
+        "local", help="local (this machine) or ray (one Ray task per log)"
+    ),
     address: str = typer.Option(
         None,
-        help="--executor ray: the cluster to join, auto or HOST:PORT (default: a local instance); "
-        "HOST:PORT of a cluster with token authentication needs RAY_AUTH_MODE=token",
+        show_default="a local Ray instance",
+        help="--executor ray: the cluster to join, auto or HOST:PORT; HOST:PORT of a cluster with token "
+        "authentication needs RAY_AUTH_MODE=token",
     ),
-    frame_stride: int = typer.Option(1, help="Keep every K-th frame"),
-    path_points: int = typer.Option(30, help="Points per resampled path"),
-    piece_points: int = typer.Option(20, help="Points per resampled piece"),
-    max_paths: int = typer.Option(256, help="Cap on paths per frame (the enumeration stops there)"),
-    resolution: float = typer.Option(0.15, help="Raster cell size in metres"),
-    line_width: int = typer.Option(5, help="Raster line width in pixels"),
-    on_error: str = typer.Option(
-        "fail", help="fail: stop at the first bad record; skip: log it to errors.jsonl"
+    frame_stride: int = typer.Option(1, min=1, help="Keep every K-th frame"),
+    path_points: int = typer.Option(30, min=2, help="Points per resampled path"),
+    piece_points: int = typer.Option(20, min=2, help="Points per resampled piece"),
+    max_paths: int = typer.Option(256, min=1, help="Cap on paths per frame (the enumeration stops there)"),
+    resolution: float = typer.Option(0.15, callback=positive, help="Raster cell size in metres (x>0)"),
+    line_width: int = typer.Option(5, min=1, help="Raster line width in pixels"),
+    on_error: Literal["fail", "skip"] = typer.Option(
+        "fail", help="fail: stop at the first bad record; skip: log it to errors.jsonl and go on"
     ),
     overwrite: bool = typer.Option(False, help="Redo logs whose shards already exist"),
     split_file: list[str] = typer.Option(
         [],
-        help="SPLIT=FILE of log ids / scene names, one per line (repeatable), replacing the dataset's "
-        "splits, e.g. StreamMapNet's geographically disjoint ones; logs in no file are left out",
+        metavar="SPLIT=FILE",
+        show_default="the dataset's splits",
+        help="A file of log ids / scene names, one per line, for SPLIT (repeatable), replacing the "
+        "dataset's splits, e.g. StreamMapNet's geographically disjoint ones; logs in no file are left out",
     ),
+    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
-    """Crop lane graphs to the ego frame; write graphs, paths, pieces and rasters to Parquet."""
-    from rich.console import Console
+    """Crop lane graphs to the ego frame; write graphs, paths, pieces and rasters to Parquet. A root
+    without logs, and an --out prepared with other options, are refused before any work.
+
+    \b
+    Examples:
+      cli prepare --dataset av2 --root data/av2/sensor --out prepared/av2 --workers 8
+      cli prepare --dataset nuscenes --root data/nuscenes --version v1.0-mini --out prepared/mini
+    """
     from rich.table import Table
 
     from pipeline.geometry import Range
@@ -122,47 +208,78 @@ def prepare(
             frame_stride=frame_stride, on_error=on_error, overwrite=overwrite, split_files=split_files,
             executor=executor, address=address,
         )  # fmt: skip
-    table = Table(title=f"prepared {out}")
+    table = Table("quantity", "value")
     keys = ("frames", "frames_skipped", "paths_per_frame", "pieces_per_frame", "junctions_per_frame",
             "path_cap_hits", "logs_already_done", "logs_in_no_split_file", "frames_per_second")  # fmt: skip
     for key in keys:
         value = summary[key]
         table.add_row(key.replace("_", " "), f"{value:.2f}" if isinstance(value, float) else str(value))
-    Console().print(table)
+    wrote = [out] + ([out / "errors.jsonl"] if summary["frames_skipped"] else [])
+    finish(summary, [(f"prepared {dataset} from {root}", table)], wrote, as_json)
 
 
 @app.command()
 def train(
-    data: Path = typer.Option(None, help="Prepared dataset (cli prepare --out); on --resume: the run's"),
-    out: Path = typer.Option(..., help="Run folder: config.json, checkpoint.pt, log.jsonl"),
-    model: str = typer.Option("lanegap", help="lanegap, hdmapnet, maptr or stsu (baselines/models)"),
-    preset: str = typer.Option("paper", help="paper (the paper's settings) or tiny (CPU, seconds per epoch)"),
-    modality: str = typer.Option(None, help="camera, lidar or fusion (default: paper camera, tiny fusion)"),
-    epochs: int = typer.Option(None, help="Epochs (paper: 24; 110 for the long schedule)"),
-    batch_size: int = typer.Option(None, help="Batch size in total over all processes"),
-    path_points: int = typer.Option(None, help="Points per path N: 10, 20, 30 or 40"),
-    bezier_points: int = typer.Option(None, help="Bezier head with K control points (paper: 5); 0: polyline"),
-    aux_seg: bool = typer.Option(None, "--aux-seg/--no-aux-seg", help="Auxiliary BEV segmentation loss"),
-    pretrained: Path = typer.Option(None, help="Local torchvision ResNet state_dict file for the backbone"),
-    set_: list[str] = typer.Option([], "--set", help="Any config field: section.field=value (repeatable)"),
+    data: Path = typer.Option(
+        None, show_default="the run's, on --resume", help="Prepared dataset (cli prepare --out)"
+    ),
+    out: Path = typer.Option(..., help="Run folder: config.json, run.json, checkpoint.pt, log.jsonl"),
+    model: Model = typer.Option("lanegap", help="The baseline to train"),
+    preset: Preset = typer.Option(
+        "paper", help="paper (the paper's settings), tiny (CPU, seconds per epoch) or gpu (one CUDA GPU)"
+    ),
+    modality: Modality = typer.Option(None, show_default=PRESET_DEFAULTS["modality"], help="Sensors"),
+    epochs: int = typer.Option(
+        None, min=1, show_default=PRESET_DEFAULTS["epochs"], help="Epochs (paper: 110 for the long schedule)"
+    ),
+    batch_size: int = typer.Option(
+        None, min=1, show_default=PRESET_DEFAULTS["batch_size"], help="Batch size in total over all processes"
+    ),
+    path_points: PATH_POINTS = typer.Option(
+        None, show_default=PRESET_DEFAULTS["path_points"], help="Points per path N (query models)"
+    ),
+    bezier_points: int = typer.Option(
+        None, min=0, show_default="0", help="Bezier head with K control points (paper: 5); 0: polyline"
+    ),
+    aux_seg: bool = typer.Option(
+        None, "--aux-seg/--no-aux-seg", show_default="aux-seg", help="Auxiliary BEV segmentation loss"
+    ),
+    pretrained: Path = typer.Option(
+        None, show_default="none", help="Local torchvision ResNet state_dict file for the backbone"
+    ),
+    set_: list[str] = typer.Option(
+        [],
+        "--set",
+        metavar="section.field=value",
+        show_default="none",
+        help="Any config field, e.g. train.lr=3e-4 or encoder.kernel_size=3,5 (repeatable)",
+    ),
     resume: bool = typer.Option(False, help="Continue the run in --out from its last checkpoint"),
     overwrite: bool = typer.Option(False, help="Start afresh in an --out that holds a run (else refused)"),
-    stop_after: int = typer.Option(0, help="End this run after that many epochs (0: all); --resume goes on"),
-    json_: bool = typer.Option(False, "--json", help="Print the summary as one JSON line (every process)"),
+    stop_after: int = typer.Option(
+        0, min=0, help="End this run after that many epochs (0: all); --resume goes on"
+    ),
+    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
-    """Train a baseline on a prepared dataset; DDP when started by torchrun
-    (`torchrun --nproc_per_node N -m cli train ...`: --batch-size is over all N processes). --resume
-    refuses a dataset prepared with other target parameters, and falls back to checkpoint.prev.pt when
-    checkpoint.pt is damaged. Ends with a summary table (rank 0), or with --json a JSON line per process."""
-    import json
+    """Train a baseline on a prepared dataset; DDP when started by torchrun (--batch-size is over all
+    processes, and with --json every process prints its line). --resume refuses a dataset prepared with
+    other target parameters, and falls back to checkpoint.prev.pt when checkpoint.pt is damaged.
 
+    \b
+    Examples:
+      cli train --model lanegap --data prepared/av2 --out runs/lanegap --preset tiny
+      torchrun --nproc_per_node 8 -m cli train --model maptr --data prepared/av2 --out runs/maptr
+    """
     from baselines.config import Config, apply_overrides, resolve_config
     from baselines.train import train as run_train
 
     with reported_errors():
         if resume:  # the run's own config; only --epochs and --set may change it (e.g. to extend it)
+            if not (out / "config.json").is_file() or not (out / "run.json").is_file():
+                raise ValueError(f"--out {out}: no run to resume (config.json and run.json of cli train)")
             config = Config.load(out / "config.json")
-            apply_overrides(config, ([f"train.epochs={epochs}"] if epochs else []) + set_)
+            apply_overrides(config, [f"train.epochs={epochs}"] if epochs else [], "--epochs")
+            apply_overrides(config, set_)
             data = data or Path(json.loads((out / "run.json").read_text())["data"])
         else:
             weights = str(pretrained) if pretrained else None
@@ -171,20 +288,16 @@ def train(
         if data is None:
             raise ValueError("--data is required")
         summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite)
-    if json_:
-        typer.echo(json.dumps(summary))
-        return
-    if os.environ.get("RANK", "0") != "0":
+    if not as_json and os.environ.get("RANK", "0") != "0":
         return  # under torchrun, rank 0 reports
-    from rich.console import Console
     from rich.table import Table
 
-    table = Table(title=f"{config.model} ({config.preset}, {config.encoder.modality}) trained into {out}")
-    for column in ("steps", "final loss", "train seconds", "steps/s"):
-        table.add_column(column)
+    table = Table("steps", "final loss", "train seconds", "steps/s")
     table.add_row(str(summary["steps"]), f"{summary['final_loss']:.4f}", f"{summary['train_seconds']:.1f}",
                   f"{summary['steps_per_s']:.2f}")  # fmt: skip
-    Console().print(table)
+    heading = f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {data}"
+    wrote = [out / name for name in ("config.json", "run.json", "checkpoint.pt", "log.jsonl")]
+    finish(summary, [(heading, table)], wrote, as_json)
 
 
 @app.command("eval")

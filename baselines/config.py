@@ -9,6 +9,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -271,19 +272,64 @@ def model_head(model: str, preset: str) -> Any:
     return HEADS[model](preset)
 
 
-def apply_overrides(config: Config, overrides: list[str]) -> Config:
-    """Apply `section.field=value` strings; the value is parsed as the type of the current value."""
+def apply_overrides(config: Config, overrides: list[str], option: str = "--set") -> Config:
+    """Apply `section.field=value` strings, each value parsed as its field's type; a bad one is an error
+    naming `option` and the string (`--set train.epochs=abc: train.epochs expects an integer, ...`)."""
     for item in overrides:
-        name, sep, text = item.partition("=")
-        section_name, dot, field_name = name.strip().partition(".")
-        if not sep or not dot or not hasattr(config, section_name):
-            raise ValueError(f"expected section.field=value, got {item!r}")
-        section = getattr(config, section_name)
-        if not hasattr(section, field_name):
-            owner = f"the {config.model} model's " if section_name == "decoder" else ""
-            raise ValueError(f"{owner}{section_name} has no field {field_name!r}")
-        setattr(section, field_name, _coerce(getattr(section, field_name), text.strip(), name))
+        set_field(config, item, f"{option} {item}")
     return config
+
+
+def set_field(config: Config, item: str, where: str) -> None:
+    """Apply one `section.field=value`; errors start with `where`."""
+    name, sep, text = item.partition("=")
+    section_name, dot, field_name = name.strip().partition(".")
+    sections = [
+        f.name for f in dataclasses.fields(config) if dataclasses.is_dataclass(getattr(config, f.name))
+    ]
+    if not sep or not dot:
+        raise ValueError(f"{where}: expected section.field=value")
+    if section_name not in sections:
+        raise ValueError(f"{where}: no config section {section_name!r} (sections: {', '.join(sections)})")
+    section = getattr(config, section_name)
+    types = typing.get_type_hints(type(section))
+    if field_name not in types:
+        owner = f"the {config.model} model's " if section_name == "decoder" else ""
+        raise ValueError(f"{where}: {owner}{section_name} has no field {field_name!r}")
+    try:
+        value = _parse(types[field_name], text.strip())
+    except ValueError as expected:
+        raise ValueError(f"{where}: {section_name}.{field_name} expects {expected}") from None
+    setattr(section, field_name, value)
+
+
+def _parse(kind: Any, text: str) -> Any:
+    """`text` as a value of the field type `kind`; a ValueError says what was expected."""
+    origin, args = typing.get_origin(kind), typing.get_args(kind)
+    if origin is Literal:
+        if text not in args:
+            raise ValueError(f"one of {', '.join(args)}, not {text!r}")
+        return text
+    if kind is bool:
+        if text.lower() not in ("true", "false", "1", "0"):
+            raise ValueError(f"true or false, not {text!r}")
+        return text.lower() in ("true", "1")
+    if kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            raise ValueError(f"{'an integer' if kind is int else 'a number'}, not {text!r}") from None
+    if origin is tuple:  # "3,5", "(3, 5)" and "3" all give a tuple
+        parts = [part.strip() for part in text.strip("()[] ").split(",") if part.strip()]
+        count = "" if Ellipsis in args else f"{len(args)} "
+        expected = f"{count}{'integers' if args[0] is int else 'numbers'} separated by commas, not {text!r}"
+        if count and len(parts) != len(args):
+            raise ValueError(expected)
+        try:
+            return tuple(args[0](part) for part in parts)
+        except ValueError:
+            raise ValueError(expected) from None
+    return text
 
 
 def _coerce(current: Any, value: Any, name: str) -> Any:
@@ -329,15 +375,17 @@ def resolve_config(
     if model != config.model:
         config.model, config.decoder = model, model_head(model, preset)
     flags = {
-        "encoder.modality": modality,
-        "train.epochs": epochs,
-        "train.batch_size": batch_size,
-        "decoder.path_points": path_points,
-        "decoder.bezier_points": bezier_points,
-        "decoder.aux_seg": aux_seg,
-        "encoder.backbone_weights": backbone_weights,
+        "--modality": ("encoder.modality", modality),
+        "--epochs": ("train.epochs", epochs),
+        "--batch-size": ("train.batch_size", batch_size),
+        "--path-points": ("decoder.path_points", path_points),
+        "--bezier-points": ("decoder.bezier_points", bezier_points),
+        "--aux-seg": ("decoder.aux_seg", aux_seg),
+        "--pretrained": ("encoder.backbone_weights", backbone_weights),
     }
-    apply_overrides(config, [f"{name}={value}" for name, value in flags.items() if value is not None])
+    for flag, (name, value) in flags.items():
+        if value is not None:
+            set_field(config, f"{name}={value}", flag)
     apply_overrides(config, overrides or [])
     if config.encoder.modality not in ("camera", "lidar", "fusion"):
         raise ValueError(f"modality must be camera, lidar or fusion, not {config.encoder.modality!r}")

@@ -68,6 +68,58 @@ def find_jobs(dataset: str, root: Path, version: str, split: str | None, frame_s
     raise ValueError(f"unknown dataset {dataset!r}: expected av2 or nuscenes")
 
 
+def no_logs_found(dataset: str, root: Path, version: str, split: str | None) -> str:
+    """The error of a root (and split) without a log: what was looked for where (a wrong --root or
+    --dataset would otherwise prepare 0 frames and leave a manifest behind)."""
+    in_split = f" in split {split}" if split else ""
+    if dataset == "av2":
+        folders = sorted(p.name for p in root.iterdir() if p.is_dir())
+        return (
+            f"{root}: no AV2 log{in_split} (looked for ROOT/{split or '<split>'}/<log id>/map/; the folders "
+            f"here: {', '.join(folders) or 'none'}); --root is the folder that holds train/, val/, ..."
+        )
+    return f"{root}: no nuScenes scene{in_split} in the {version} tables (looked in {root / version})"
+
+
+def option_name(parameter: str) -> str:
+    """The `cli prepare` option of a manifest parameter."""
+    return {"bev_range": "--range", "split_files": "--split-file"}.get(
+        parameter, f"--{parameter.replace('_', '-')}"
+    )
+
+
+def shown(value) -> str:
+    """A manifest parameter as the command line writes it."""
+    if isinstance(value, dict):  # split files
+        return ",".join(f"{name}={path}" for name, path in value.items())
+    return "none" if value is None else str(value)
+
+
+def check_options(
+    options: TargetOptions, frame_stride: int, workers: int, on_error: str, executor: str
+) -> None:
+    """Refuse values that would crash or mean nothing later (a 0-point resample ends the interpreter), each
+    named as its `cli prepare` option; the command line refuses most of them already."""
+    at_least = {"--path-points": (options.path_points, 2), "--piece-points": (options.piece_points, 2),
+                "--max-paths": (options.max_paths, 1), "--line-width": (options.line_width, 1),
+                "--frame-stride": (frame_stride, 1), "--workers": (workers, 1)}  # fmt: skip
+    for name, (value, least) in at_least.items():
+        if value < least:
+            raise ValueError(f"{name} must be at least {least}, not {value}")
+    if not options.resolution > 0:
+        raise ValueError(f"--resolution must be greater than 0, not {options.resolution}")
+    rows, cols = options.grid.shape
+    if rows < 1 or cols < 1:
+        raise ValueError(
+            f"--resolution {options.resolution} leaves no raster cell ({rows} x {cols}) in --range "
+            f"{options.bev_range.text}"
+        )
+    if on_error not in ("fail", "skip"):
+        raise ValueError(f"--on-error must be fail or skip, not {on_error!r}")
+    if executor not in ("local", "ray"):
+        raise ValueError(f"--executor must be local or ray, not {executor!r}")
+
+
 def read_split_files(split_files: dict[str, Path]) -> dict[str, str]:
     """{log id or scene name: split} from one file of names (one per line) per split, e.g. the
     geographically disjoint splits of StreamMapNet. A name in two files is an error."""
@@ -287,10 +339,7 @@ def prepare(
     of log ids or scene names}) replaces the dataset's own splits; logs in no file are left out.
     executor: local (this process, or a fork pool of `workers`) or ray (one Ray task per log: a local
     instance of `workers` CPUs, or the cluster at address, "auto" or HOST:PORT; pipeline/executor.py)."""
-    if on_error not in ("fail", "skip"):
-        raise ValueError(f"--on-error must be fail or skip, not {on_error!r}")
-    if executor not in ("local", "ray"):
-        raise ValueError(f"--executor must be local or ray, not {executor!r}")
+    check_options(options, frame_stride, workers, on_error, executor)
     if address and executor != "ray":
         raise ValueError("--address is for --executor ray")
     if executor == "ray":  # before any work: a missing Ray is a one-line error, not a traceback later
@@ -306,6 +355,14 @@ def prepare(
         left_out = len(found) - len(named)
     else:
         jobs, left_out = find_jobs(dataset, root, version, split, frame_stride), 0
+    if not jobs and not split_files:
+        raise ValueError(no_logs_found(dataset, root, version, split))
+    if not jobs:
+        names = ", ".join(f"{name}={path}" for name, path in split_files.items())
+        in_split = f" of split {split}" if split else ""
+        raise ValueError(
+            f"{root}: none of its {len(found)} logs is named in the split files{in_split} ({names})"
+        )
     options_dict = asdict(options)
     options_dict["bev_range"] = options.bev_range.text
     parameters = {**options_dict, "frame_stride": frame_stride}
@@ -315,11 +372,15 @@ def prepare(
     if manifest_path.is_file() and not overwrite:
         # shards made with other options must not be mixed with new ones
         before = json.loads(manifest_path.read_text())
-        old = {k: v for k, v in before.get("parameters", {}).items() if k != "split"}
-        if before.get("dataset") != dataset or old != parameters:
+        old = {"dataset": before.get("dataset"), **before.get("parameters", {})}
+        new = {"dataset": dataset, **parameters}
+        differing = [key for key in {**old, **new} if key != "split" and old.get(key) != new.get(key)]
+        if differing:
+            changes = ", ".join(
+                f"{option_name(k)} {shown(old.get(k))} (now {shown(new.get(k))})" for k in differing
+            )
             raise ValueError(
-                f"{out} was prepared with other options ({before.get('dataset')}, {old}); "
-                "pass --overwrite or choose another --out"
+                f"{out} was prepared with other options: {changes}; pass --overwrite or choose another --out"
             )
         if before.get("schema_version") != io.SCHEMA_VERSION:
             raise ValueError(

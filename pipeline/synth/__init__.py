@@ -17,13 +17,12 @@ import shutil
 import time
 from pathlib import Path
 
-from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
 
 from pipeline.synth import av2_writer, nuscenes_map, nuscenes_writer
 from pipeline.synth.ids import token
-from pipeline.synth.logs import LogPlan, plan_logs
+from pipeline.synth.logs import MINI_TRAIN, MINI_VAL, POSE_PERIOD_NS, LogPlan, plan_logs
 from pipeline.synth.sensors import write_sensors
 from pipeline.synth.world import MAX_WORLDS, World, build_world
 
@@ -45,8 +44,7 @@ def synth(
     frame_period: seconds between frames (1 s: 20 frames cover much of a route; both datasets sweep at
     10 Hz, 0.1 s). The defaults are the learning checks' data."""
     out = Path(out)
-    if not 1 <= worlds <= MAX_WORLDS:
-        raise ValueError(f"worlds must be 1 to {MAX_WORLDS} (one nuScenes map location each), not {worlds}")
+    check_arguments(logs, frames_per_log, seed, frame_period, worlds, val_worlds)
     built = [build_world(seed, k) for k in range(worlds)]
     plans = plan_logs(built, logs, frames_per_log, seed, round(frame_period * 1e9), val_worlds)
     driven = sorted({plan.world for plan in plans})
@@ -80,8 +78,33 @@ def synth(
         progress.advance()
     summary["complete"] = True
     (out / MARKER).write_text(json.dumps(summary, indent=1))
-    _print_summary(out, summary)
     return summary
+
+
+def check_arguments(
+    logs: int, frames_per_log: int, seed: int, frame_period: float, worlds: int, val_worlds: int
+) -> None:
+    """Refuse bad arguments before the worlds are built, each named as its `cli synth` option."""
+    most_logs = len(MINI_TRAIN) + len(MINI_VAL)
+    if not 1 <= logs <= most_logs:
+        raise ValueError(f"--logs must be 1 to {most_logs} (the nuScenes mini scene names), not {logs}")
+    if frames_per_log < 1:
+        raise ValueError(f"--frames-per-log must be at least 1, not {frames_per_log}")
+    if seed < 0:
+        raise ValueError(f"--seed must be at least 0, not {seed}")
+    period_ns = round(frame_period * 1e9)
+    if period_ns <= 0 or period_ns % POSE_PERIOD_NS:
+        raise ValueError(
+            f"--frame-period {frame_period} is not a positive multiple of {POSE_PERIOD_NS / 1e9} s "
+            "(the pose period)"
+        )
+    if not 1 <= worlds <= MAX_WORLDS:
+        raise ValueError(f"--worlds must be 1 to {MAX_WORLDS} (one nuScenes map location each), not {worlds}")
+    if worlds > 1 and not 1 <= val_worlds < worlds:
+        raise ValueError(
+            f"--val-worlds {val_worlds} must be at least 1 and fewer than --worlds {worlds} (training "
+            "needs a world of its own)"
+        )
 
 
 def _log_summary(plan: LogPlan, world: World) -> dict:
@@ -130,12 +153,12 @@ class _LazyProgress:
             self.bar.stop()
 
 
-def _print_summary(out: Path, summary: dict) -> None:
-    title = f"synth: {len(summary['worlds'])} worlds, seed {summary['seed']} -> {out}"
-    table = Table(title=title, title_justify="left")
+def summary_table(summary: dict) -> Table:
+    """The logs of a synth summary: split, world, ids, route and frames (`cli synth` prints it)."""
+    table = Table()
     for column in ("split", "world", "AV2 log id", "nuScenes scene", "route", "frames"):
-        table.add_column(column)
+        table.add_column(column, overflow="fold")
     for log in summary["logs"]:
         world = f"{log['world']} {log['nuscenes_map']}"
         table.add_row(log["split"], world, log["log_id"], log["scene"], log["route"], str(log["frames"]))
-    Console().print(table)
+    return table

@@ -351,20 +351,12 @@ def eval_(
         typer.echo(f"floor without {name}: {reason}")
 
 
-def print_scores(result: dict, title: str, as_json: bool) -> None:
-    """A score result: its JSON (--json, for scripts) or a short table of P / R / F1 and mIoU."""
-    if as_json:
-        import json
-
-        typer.echo(json.dumps(result, indent=2))
-        return
-    from rich.console import Console
+def score_table(result: dict):
+    """A score result as a table of P / R / F1 (and its bootstrap interval) and mIoU, with its notes."""
     from rich.table import Table
 
-    table = Table(title=f"{title} ({result['frames']} frames, metric_version {result['metric_version']})")
     drawn = result.get("bootstrap")
-    for column in ("", "precision", "recall", "F1") + (("F1 interval",) if drawn else ()):
-        table.add_column(column)
+    table = Table(*(("metric", "precision", "recall", "F1") + (("F1 interval",) if drawn else ())))
     for mode in ("directed", "undirected"):
         for name, metric in (("TOPO", "topo"), ("Junction TOPO", "junction_topo")):
             values = result[mode][metric]
@@ -372,61 +364,105 @@ def print_scores(result: dict, title: str, as_json: bool) -> None:
             cells += ["{:.3f}-{:.3f}".format(*values["f1_ci"])] if drawn else []
             table.add_row(f"{mode} {name}", *cells)
     table.add_row("mIoU", "", "", f"{result['miou']:.3f}")
-    Console().print(table)
+    notes = [f"metric_version {result['metric_version']}"]
     if drawn:
-        typer.echo(f"F1 interval: the 95 % interval of a bootstrap of {drawn['draws']} draws over the frames "
-                   f"(seed {drawn['seed']})")  # fmt: skip
+        notes.append(f"F1 interval: the 95 % interval of a bootstrap of {drawn['draws']} draws over the "
+                     f"frames (seed {drawn['seed']})")  # fmt: skip
+    return table, notes
 
 
 @app.command()
 def score(
     pred: Path = typer.Option(
         ...,
-        help="Predictions: a graph-table Parquet file (or a folder of shards). A ground-truth frame "
-        "without a row is scored as an empty prediction; a frame id not in the ground truth is refused",
+        help="Predictions: a graph-table Parquet file or a folder of shards, e.g. RUN/predictions.parquet",
     ),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset or a graph-table file"),
-    out: Path = typer.Option(None, help="Write the JSON (scores, thresholds, metric_version) to this file"),
-    as_json: bool = typer.Option(False, "--json", help="Print the JSON instead of the table (for scripts)"),
-    step: float = typer.Option(0.15, help="Densification step, metres"),
-    match_radius: float = typer.Option(0.45, help="Vertices closer than this may be paired, metres"),
-    reach_radius: float = typer.Option(7.5, help="Reach: path distance below this, metres"),
-    matching: str = typer.Option("greedy", help="greedy (by distance) or optimal (maximum cardinality)"),
-    range_: str = typer.Option(None, "--range", help="mIoU grid WIDTHxLENGTH (default: the dataset's)"),
-    workers: int = typer.Option(1, help="Worker processes (0: one per core)"),
+    split: str = typer.Option(
+        None,
+        show_default="the split(s) of the predicted frames",
+        help="Score the ground truth's frames of this split (a prepared dataset's); a frame without a "
+        "prediction row is an empty prediction, a predicted frame of another split is refused",
+    ),
+    out: Path = typer.Option(
+        None,
+        show_default="not written",
+        help="Write the JSON (scores, thresholds, metric_version) to this file",
+    ),
+    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    step: float = typer.Option(0.15, callback=positive, help="Densification step in metres (x>0)"),
+    match_radius: float = typer.Option(
+        0.45, callback=positive, help="Vertices closer than this may be paired, metres (x>0)"
+    ),
+    reach_radius: float = typer.Option(
+        7.5, callback=positive, help="Reach: path distance below this, metres (x>0)"
+    ),
+    matching: Literal["greedy", "optimal"] = typer.Option(
+        "greedy", help="greedy (by distance) or optimal (maximum cardinality)"
+    ),
+    range_: str = typer.Option(
+        None, "--range", metavar="WIDTHxLENGTH", show_default="the dataset's", help="mIoU grid in metres"
+    ),
+    workers: int = typer.Option(1, min=0, help="Worker processes (0: one per core)"),
     bootstrap: int = typer.Option(
-        1000, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
+        1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
     ),
 ) -> None:
     """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md);
     the JSON records the thresholds and metric_version. Predictions of `cli eval` made by a model trained
-    on other target parameters than the ground truth's are refused (stale data)."""
+    on other target parameters than the ground truth's are refused (stale data).
+
+    \b
+    Examples:
+      cli score --pred runs/lanegap/predictions.parquet --gt prepared/av2
+      cli score --pred my_predictions.parquet --gt prepared/av2 --split val --out scores.json --json
+    """
     from benchmark.score import score as run_score
 
     params = dict(step=step, match_radius=match_radius, reach_radius=reach_radius, matching=matching)
     if range_:
         params["bev_range"] = range_
     with reported_errors():
-        result = run_score(pred, gt, out, workers=workers, bootstrap=bootstrap, **params)
-    print_scores(result, f"{pred} against {gt}", as_json)
+        result = run_score(pred, gt, out, workers=workers, bootstrap=bootstrap, split=split, **params)
+    where = f", split {', '.join(result['splits'])}" if result["splits"] else ", every frame"
+    heading = (f"{pred} against {gt}{where}: {result['frames']} frames scored, {result['frames_predicted']} "
+               f"predicted, {result['frames_missing']} missing")  # fmt: skip
+    table, notes = score_table(result)
+    finish(result, [(heading, table)], [out] if out else [], as_json, notes)
 
 
 @app.command()
 def roundtrip(
     data: Path = typer.Option(..., help="Prepared dataset (cli prepare --out)"),
-    via: str = typer.Option(..., help="path (Path2Graph), piece (Piece2Graph) or pixel (Pixel2Graph)"),
-    out: Path = typer.Option(None, help="Write the JSON (scores, thresholds, metric_version) to this file"),
-    as_json: bool = typer.Option(False, "--json", help="Print the JSON instead of the table (for scripts)"),
-    merge_radius: float = typer.Option(0.0, help="Path2Graph's near merge in metres (0: identical points)"),
-    frame_stride: int = typer.Option(1, help="Every K-th frame"),
-    workers: int = typer.Option(1, help="Worker processes (0: one per core)"),
+    via: Literal["path", "piece", "pixel"] = typer.Option(
+        ..., help="path (Path2Graph), piece (Piece2Graph) or pixel (Pixel2Graph)"
+    ),
+    out: Path = typer.Option(
+        None,
+        show_default="not written",
+        help="Write the JSON (scores, thresholds, metric_version) to this file",
+    ),
+    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    merge_radius: float = typer.Option(
+        0.0, min=0.0, help="Path2Graph's near merge in metres (0: identical points only)"
+    ),
+    frame_stride: int = typer.Option(1, min=1, help="Every K-th frame"),
+    workers: int = typer.Option(1, min=0, help="Worker processes (0: one per core)"),
 ) -> None:
-    """The ground truth through a representation and back, scored against itself (Tab. 10)."""
+    """The ground truth through a representation and back, scored against itself (the paper's Tab. 10).
+
+    \b
+    Examples:
+      cli roundtrip --data prepared/av2 --via path --out roundtrip_path.json
+      cli roundtrip --data prepared/av2 --via pixel --frame-stride 10 --workers 0
+    """
     from benchmark.roundtrip import roundtrip as run_roundtrip
 
     with reported_errors():
         result = run_roundtrip(data, via, out, merge_radius, workers, frame_stride)
-    print_scores(result, f"{data} through {via} and back", as_json)
+    table, notes = score_table(result)
+    heading = f"{data} through {via} and back: {result['frames']} frames"
+    finish(result, [(heading, table)], [out] if out else [], as_json, notes)
 
 
 @app.command()

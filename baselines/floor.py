@@ -27,6 +27,7 @@ import numpy as np
 from benchmark.metrics import MetricParams
 from benchmark.score import score_pairs
 from pipeline.lane_graph import LaneGraph
+from pipeline.progress import track
 
 # The prior search scores each candidate frame's graph on other training frames: candidates x scored
 # metric calls (~8 ms each). Both are bounded here, the only place: 32 x 64 = 2048 calls, ~16 s once
@@ -90,12 +91,14 @@ def best_constant(
     if cache.is_file():
         return {**json.loads(cache.read_text()), "cached": True}
     best_f1, best_id = -1.0, None
-    for candidate in candidates:
-        # a frame scored against itself is a perfect match that only the candidates in `scored` get
-        pairs = [(ground_truth[candidate], ground_truth[f]) for f in scored if f != candidate]
-        f1 = score_pairs(pairs, params)["directed"]["topo"]["f1"]
-        if f1 > best_f1:
-            best_f1, best_id = f1, candidate
+    with track(f"floor: {name.partition('__')[0].replace('_', ' ')} search", len(candidates)) as advance:
+        for candidate in candidates:
+            # a frame scored against itself is a perfect match that only the candidates in `scored` get
+            pairs = [(ground_truth[candidate], ground_truth[f]) for f in scored if f != candidate]
+            f1 = score_pairs(pairs, params)["directed"]["topo"]["f1"]
+            if f1 > best_f1:
+                best_f1, best_id = f1, candidate
+            advance()
     found = {"frame_id": best_id, "f1": best_f1, "candidates": len(candidates), "scored_frames": len(scored)}
     try:  # atomic: a concurrent eval reads the old file or the new one, never half of one
         cache.parent.mkdir(parents=True, exist_ok=True)

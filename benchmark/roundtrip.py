@@ -25,6 +25,7 @@ from benchmark.score import default_range, graphs_from_table, score_pairs, write
 from pipeline.geometry import Range
 from pipeline.io import decode_raster, read_table
 from pipeline.lane_graph import LaneGraph
+from pipeline.progress import track
 from pipeline.raster import Grid
 
 VIAS = ("path", "piece", "pixel")
@@ -45,27 +46,36 @@ def polylines_by_frame(data: Path, table: str, index: str) -> dict[str, list[np.
 
 def rebuild(data: Path, via: str, frame_ids: list[str], merge_radius: float) -> dict[str, LaneGraph]:
     """{frame_id: the graph rebuilt from the representation}."""
-    if via == "path":
-        paths = polylines_by_frame(data, "paths", "path_index")
-        return {f: path2graph(paths.get(f, []), merge_radius=merge_radius) for f in frame_ids}
-    if via == "piece":
-        pieces = polylines_by_frame(data, "pieces", "piece_index")
-        links: dict[str, list[tuple[int, int]]] = {}
-        table = read_table(data, "piece_links")
-        for f, i, j in zip(*(table.column(c).to_pylist() for c in ("frame_id", "src_piece", "dst_piece"))):
-            links.setdefault(f, []).append((i, j))
-        return {f: piece2graph(pieces.get(f, []), np.array(links.get(f, []))) for f in frame_ids}
-    if via == "pixel":
-        crop = Range.parse(default_range(data))
-        wanted = ds_field("frame_id").isin(frame_ids)
-        out = {}
-        for row in read_table(data, "rasters", filter=wanted).to_pylist():
-            mask, direction = decode_raster(row)
-            # the table stores float32 (0.15000000596): the grid's own value places the pixels
-            grid = Grid(crop, round(float(row["resolution"]), 6))
-            out[row["frame_id"]] = pixel2graph(mask, direction, grid)
-        return {f: out.get(f, LaneGraph.empty()) for f in frame_ids}
-    raise ValueError(f"via must be one of {', '.join(VIAS)}, not {via!r}")
+    if via not in VIAS:
+        raise ValueError(f"via must be one of {', '.join(VIAS)}, not {via!r}")
+    out: dict[str, LaneGraph] = {}
+    with track(f"rebuild via {via}", len(frame_ids)) as advance:
+        if via == "path":
+            paths = polylines_by_frame(data, "paths", "path_index")
+            for f in frame_ids:
+                out[f] = path2graph(paths.get(f, []), merge_radius=merge_radius)
+                advance()
+        elif via == "piece":
+            pieces = polylines_by_frame(data, "pieces", "piece_index")
+            links: dict[str, list[tuple[int, int]]] = {}
+            table = read_table(data, "piece_links")
+            for f, i, j in zip(
+                *(table.column(c).to_pylist() for c in ("frame_id", "src_piece", "dst_piece"))
+            ):
+                links.setdefault(f, []).append((i, j))
+            for f in frame_ids:
+                out[f] = piece2graph(pieces.get(f, []), np.array(links.get(f, [])))
+                advance()
+        else:
+            crop = Range.parse(default_range(data))
+            wanted = ds_field("frame_id").isin(frame_ids)
+            for row in read_table(data, "rasters", filter=wanted).to_pylist():
+                mask, direction = decode_raster(row)
+                # the table stores float32 (0.15000000596): the grid's own value places the pixels
+                grid = Grid(crop, round(float(row["resolution"]), 6))
+                out[row["frame_id"]] = pixel2graph(mask, direction, grid)
+                advance()
+    return {f: out.get(f, LaneGraph.empty()) for f in frame_ids}
 
 
 def roundtrip(
@@ -80,6 +90,10 @@ def roundtrip(
     (every frame_stride-th frame, in frame_id order)."""
     if via not in VIAS:
         raise ValueError(f"via must be one of {', '.join(VIAS)}, not {via!r}")
+    if frame_stride < 1 or merge_radius < 0:
+        raise ValueError(
+            f"--frame-stride must be at least 1 ({frame_stride}), --merge-radius at least 0 ({merge_radius})"
+        )
     data = Path(data)
     gt = graphs_from_table(read_table(data, "graphs"), data / "graphs")
     frame_ids = sorted(gt)[::frame_stride]

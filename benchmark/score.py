@@ -3,8 +3,10 @@
 A graph table has one row per frame: `frame_id: string, x: list<float32>, y: list<float32>,
 src: list<int32>, dst: list<int32>` (docs/DATA.md). The ground truth is the `graphs` table of a
 prepared dataset (a folder) or one such file; predictions are one file (or a folder of shards).
-A frame of the ground truth without a prediction row is scored as an empty prediction; a predicted
-frame id that is not in the ground truth is refused (a typo or another dataset, never silently dropped).
+The ground-truth frames scored are those of the predicted frames' split(s) (a prepared dataset's `frames`
+table; `--split` names one): a frame of the ground truth without a prediction row is scored as an empty
+prediction; a predicted frame id that is not in the ground truth is refused (a typo or another dataset,
+never silently dropped).
 
 Stale data is refused: predictions written by `cli eval` record the target parameters of the dataset
 their model was trained on (TARGETS_KEY in the Parquet metadata), and a prepared ground truth made with
@@ -26,6 +28,7 @@ from benchmark.bootstrap import add_intervals, check_draws
 from benchmark.metrics import METRIC_VERSION, MetricParams, Totals
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
+from pipeline.progress import track
 
 COLUMNS = ("frame_id", "x", "y", "src", "dst")
 # What defines a prepared dataset's targets: manifest.json "parameters" and its schema_version.
@@ -149,14 +152,18 @@ def score_frames(
     order)."""
     workers = workers if workers > 0 else os.cpu_count() or 1
     totals = Totals(params)
-    if workers <= 1 or len(pairs) < 2 * workers:
-        totals.add(_score_chunk(pairs, params))
-    else:
-        size = max(1, min(64, len(pairs) // (4 * workers)))
-        chunks = [pairs[i : i + size] for i in range(0, len(pairs), size)]
-        with ProcessPoolExecutor(workers) as pool:
-            for part in pool.map(_score_chunk, chunks, [params] * len(chunks)):
-                totals.add(part)  # exact sums: the chunking does not change a digit
+    with track("score frames", len(pairs)) as advance:
+        if workers <= 1 or len(pairs) < 2 * workers:
+            for pred, gt in pairs:
+                totals.add_frame(pred, gt)
+                advance()
+        else:
+            size = max(1, min(64, len(pairs) // (4 * workers)))
+            chunks = [pairs[i : i + size] for i in range(0, len(pairs), size)]
+            with ProcessPoolExecutor(workers) as pool:
+                for part in pool.map(_score_chunk, chunks, [params] * len(chunks)):
+                    totals.add(part)  # exact sums: the chunking does not change a digit
+                    advance(part.frames)
     return {**totals.result(), "metric_version": METRIC_VERSION}, totals.frame_table()
 
 
@@ -198,15 +205,56 @@ def write_result(result: dict, out: Path | None) -> None:
         io.write_json(Path(out), result)
 
 
+def frame_splits(gt_path: Path) -> dict[str, str] | None:
+    """{frame_id: split} of a prepared dataset's `frames` table; None for a graph-table file."""
+    if not (Path(gt_path) / "frames").is_dir():
+        return None
+    table = io.read_table(Path(gt_path), "frames", columns=["frame_id", "split"])
+    return dict(zip(table.column("frame_id").to_pylist(), table.column("split").to_pylist()))
+
+
+def scored_frames(
+    pred: dict, gt: dict, gt_path: Path, pred_path: Path, split: str | None
+) -> tuple[list[str], list[str] | None]:
+    """(frame ids to score, their splits): the ground truth's frames of `split`, by default of the splits
+    the predicted frames belong to; every frame (splits None) of a graph-table file, which has no splits."""
+    split_of = frame_splits(gt_path)
+    if split_of is None:
+        if split:
+            raise GraphTableError(
+                f"--split {split}: the ground truth {gt_path} is a graph-table file without splits; pass a "
+                "prepared dataset (cli prepare --out)"
+            )
+        return sorted(gt), None
+    if split:
+        if split not in set(split_of.values()):
+            known = ", ".join(sorted(set(split_of.values())))
+            raise GraphTableError(f"--split {split}: no such split in {gt_path} (its splits: {known})")
+        outside = sorted(f for f in pred if split_of.get(f) != split)
+        if outside:
+            raise GraphTableError(
+                f"{pred_path}: frame {outside[0]} is in split {split_of.get(outside[0])!r}, not in "
+                f"--split {split}"
+            )
+    elif not pred:
+        raise GraphTableError(
+            f"{pred_path}: no predicted frame; pass --split to score a split's frames as empty"
+        )
+    splits = [split] if split else sorted({split_of[f] for f in pred})
+    return sorted(f for f in gt if split_of.get(f) in splits), splits
+
+
 def score(
     pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, bootstrap: int = 0,
-    **params,
+    split: str | None = None, **params,
 ) -> dict:  # fmt: skip
     """Score a prediction graph table against the ground truth; params are MetricParams fields;
     `bootstrap` draws over the frames give each F1 its 95 % interval (0: none; `cli score`: DRAWS).
 
-    Every ground-truth frame is scored; one with no prediction row counts as an empty prediction, a
-    predicted frame that is not in the ground truth is refused.
+    The frames of `split` are scored (by default the split or splits of the predicted frames, from a
+    prepared dataset's `frames` table; every frame of a graph-table file). One with no prediction row
+    counts as an empty prediction (`frames_missing`); a predicted frame that is not in the ground truth,
+    or not in `split`, is refused.
     """
     check_draws(bootstrap)
     params.setdefault("bev_range", default_range(gt_path))
@@ -219,8 +267,11 @@ def score(
     unknown = sorted(set(pred) - set(gt))
     if unknown:
         raise GraphTableError(f"{pred_path}: frame {unknown[0]} is not in the ground truth {gt_path}")
-    pairs = [(pred.get(f, LaneGraph.empty()), gt[f]) for f in sorted(gt)]
+    frame_ids, splits = scored_frames(pred, gt, Path(gt_path), Path(pred_path), split)
+    pairs = [(pred.get(f, LaneGraph.empty()), gt[f]) for f in frame_ids]
     result = score_pairs(pairs, metric_params, workers, bootstrap)
-    result.update(pred=str(pred_path), gt=str(gt_path), frames_predicted=len(pred))
+    missing = sum(f not in pred for f in frame_ids)
+    result.update(pred=str(pred_path), gt=str(gt_path), splits=splits, frames_predicted=len(pred),
+                  frames_missing=missing)  # fmt: skip
     write_result(result, out)
     return result

@@ -82,11 +82,17 @@ def test_more_workers_give_the_same_digits(prepared_av2, tmp_path):
 
 
 def test_a_prepared_dataset_is_ground_truth(prepared_av2, tmp_path):
-    """Its `graphs` folder is read, and its perception range sets the mIoU grid."""
+    """Its `graphs` folder is read, the frames of the predicted frames' split are scored (those without a
+    prediction as empty ones), and its perception range sets the mIoU grid."""
     first = read_table(prepared_av2, "graphs").slice(0, 3)
     pred = write(tmp_path / "pred.parquet", first.to_pylist())
     result = score(pred, prepared_av2)
-    assert result["frames"] == read_table(prepared_av2, "graphs").num_rows
+    splits = dict(zip(*read_table(prepared_av2, "frames", ["frame_id", "split"]).to_pydict().values()))
+    (split,) = {splits[f] for f in first.column("frame_id").to_pylist()}
+    in_split = sum(s == split for s in splits.values())
+    assert result["splits"] == [split] and len(splits) > in_split  # the other split is not scored
+    counts = (result["frames"], result["frames_predicted"], result["frames_missing"])
+    assert counts == (in_split, 3, in_split - 3)
     assert result["params"]["bev_range"] == "30x60"
     assert 0 < result["directed"]["topo"]["recall"] < 0.05 and result["directed"]["topo"]["precision"] == 1.0
 
@@ -166,4 +172,4 @@ def test_cli_roundtrip(prepared_av2, tmp_path):
     result = json.loads(out.read_text())
     assert result["frames"] == 8 and result["directed"]["topo"]["f1"] == 1.0
     run = CliRunner().invoke(app, ["roundtrip", "--data", str(prepared_av2), "--via", "polygon"])
-    assert run.exit_code == 1 and "via" in run.output
+    assert run.exit_code == 2 and "Invalid value for '--via'" in run.output  # click's usage error

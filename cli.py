@@ -309,21 +309,26 @@ def eval_(
     floor: bool = typer.Option(
         True, help="Also score the sensor-blind floor (other log's sensors, constant prior) and the margin"
     ),
+    bootstrap: int = typer.Option(
+        1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
+    ),
 ) -> None:
     """Predict a split, turn the outputs into lane graphs (the model's post-processing), write
-    predictions.parquet and metrics.json into the run folder; a dataset prepared with other target
-    parameters than the run's is refused (stale data)."""
+    predictions.parquet, frame_counts.parquet and metrics.json into the run folder; a dataset prepared
+    with other target parameters than the run's is refused (stale data)."""
     from rich.console import Console
     from rich.table import Table
 
     from baselines.evaluate import evaluate
 
     with reported_errors():
-        metrics = evaluate(run, data, split, device, floor=floor)
-    blind = metrics.get("floor")
+        metrics = evaluate(run, data, split, device, floor=floor, bootstrap=bootstrap)
+    blind, drawn = metrics.get("floor"), metrics.get("bootstrap")
     table = Table(title=f"{run} on {metrics['split']} ({metrics['frames']} frames)")
     table.add_column("")
     table.add_column("model")
+    if drawn:
+        table.add_column("95 % interval")
     for title in ("other log's sensors", "constant prior", "floor", "margin") if blind else ():
         table.add_column(title)
 
@@ -333,6 +338,7 @@ def eval_(
     for mode in ("directed", "undirected"):
         for name, metric in (("TOPO", "topo"), ("Junction TOPO", "junction_topo")):
             row = [f"{mode} {name} F1", cell(metrics[mode][metric]["f1"])]
+            row += ["{:.3f}-{:.3f}".format(*metrics[mode][metric]["f1_ci"])] if drawn else []
             if blind:
                 baselines = (blind["other_log_sensors"], blind["constant_prior"])
                 row += [cell(b[mode][metric]["f1"] if b else None) for b in baselines]
@@ -473,28 +479,38 @@ def report(
     roundtrip: list[Path] = typer.Option([], "--roundtrip", help="A `cli roundtrip` JSON (repeatable)"),
     out: Path = typer.Option(..., help="Folder for report.md and its PNGs"),
     workers: int = typer.Option(1, help="Worker processes of the scores by junction count (0: one per core)"),
+    reference: str = typer.Option(
+        None, show_default="none", help="paper: place the paper's published tables beside the measured ones"
+    ),
+    bootstrap: int = typer.Option(
+        1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
+    ),
 ) -> None:
     """The comparison tables and pictures of finished runs (from `cli eval` and `cli roundtrip`) as
-    OUT/report.md; prints the main tables."""
+    OUT/report.md; prints the main tables (with --reference, the paper's rows beside them)."""
     from rich.console import Console
     from rich.table import Table
 
     from benchmark.report import main_table, write_report
 
     with reported_errors():
-        result = write_report(runs, out, roundtrip, workers)
+        result = write_report(runs, out, roundtrip, workers, reference=reference, draws=bootstrap)
     console = Console()
-    for block in result.blocks:
-        header, rows = main_table(block)
+
+    def print_table(title: str, header: list[str], rows: list[list[str]]) -> None:
         keep = [i for i, name in enumerate(header) if i < 2 or name.endswith("F1") or name.startswith("FPS")]
-        table = Table(title=block.title.replace("`", ""))
+        table = Table(title=title.replace("`", ""))
         for i in keep:
             table.add_column(header[i])
-        for row in rows:  # markdown bold -> rich bold
-            table.add_row(
-                *(f"[bold]{row[i][2:-2]}[/bold]" if row[i].startswith("**") else row[i] for i in keep)
-            )
+        for row in rows:  # markdown bold -> rich bold; no markdown code quotes
+            cells = [row[i].replace("`", "") for i in keep]
+            table.add_row(*(f"[bold]{c[2:-2]}[/bold]" if c.startswith("**") else c for c in cells))
         console.print(table)
+
+    for block, references in zip(result.blocks, result.references):
+        print_table(block.title, *main_table(block))
+        for title, header, rows in references:
+            print_table(title, header, rows)
     console.print(f"report: {result.path} ({len(result.pictures)} pictures)")
 
 
@@ -502,26 +518,18 @@ def report(
 def viz(
     pred: Path = typer.Option(..., help="Predictions: a graph-table Parquet file (RUN/predictions.parquet)"),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset (or a graph-table file)"),
-    frame: str = typer.Option(
-        None, show_default="the predicted frame of the lowest directed TOPO F1", help="Frame id"
-    ),
+    frame: str = typer.Option(None, help="Frame id; default: the predicted frame of the lowest TOPO F1"),
     camera: bool = typer.Option(False, help="Add the front camera image with both graphs on the ground"),
     out: Path = typer.Option(..., help="PNG file to write"),
 ) -> None:
-    """One frame: ground truth and prediction side by side in BEV, matched and unmatched vertices coloured.
-
-    \b
-    Examples:
-      cli viz --pred runs/lanegap/predictions.parquet --gt prepared/av2 --out worst.png
-      cli viz --pred runs/lanegap/predictions.parquet --gt prepared/av2 --frame FRAME_ID --camera --out f.png
-    """
+    """One frame: ground truth and prediction side by side in BEV, matched and unmatched vertices coloured."""
     from benchmark.figures import viz as run_viz
 
     with reported_errors():
         result = run_viz(pred, gt, frame, out, camera)
     directed = result["scores"]["directed"]
     typer.echo(
-        f"wrote {out}: frame {result['frame_id']}, directed TOPO F1 {directed['topo']['f1']:.3f}, "
+        f"{out}: frame {result['frame_id']}, directed TOPO F1 {directed['topo']['f1']:.3f}, "
         f"Junction TOPO F1 {directed['junction_topo']['f1']:.3f}"
     )
 

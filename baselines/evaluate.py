@@ -7,6 +7,9 @@ post-processing to a lane graph), the device, the training's effective batch siz
 unless `floor=False`, the sensor-blind floor and the model's margin over it (baselines/floor.py). Both
 are written at the end, atomically: a failed evaluation leaves the earlier ones as they were.
 
+RUN_DIR/frame_counts.parquet, written just before metrics.json, holds each frame's metric sums: the 95 %
+intervals beside each F1 come from them (benchmark/bootstrap.py), and so do `cli report`'s paired ones.
+
 A dataset prepared with other target parameters than the run's training data is refused (stale data),
 and so is a damaged checkpoint or one that would need unpickling (baselines/train.py load_checkpoint).
 """
@@ -31,6 +34,7 @@ from baselines.data import PreparedDataset, collate
 from baselines.floor import blind_floor, floor_margins
 from baselines.models import Built, build
 from baselines.train import CHECKPOINT, amp_settings, load_checkpoint
+from benchmark.bootstrap import DRAWS, FRAME_COUNTS, add_intervals, check_draws, write_frame_counts
 from benchmark.metrics import MetricParams
 from benchmark.score import (
     TARGETS_KEY,
@@ -38,7 +42,7 @@ from benchmark.score import (
     default_range,
     graphs_from_table,
     read_graph_table,
-    score_pairs,
+    score_frames,
 )
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
@@ -88,10 +92,12 @@ def evaluate(
     device: str | None = None,
     warmup_frames: int = 5,
     floor: bool = True,
+    bootstrap: int = DRAWS,
 ) -> dict:
     """Predict, post-process to lane graphs, score, and score the blind floor (`floor`,
-    baselines/floor.py); returns (and writes) the metrics. The floor's prior search is cached in
-    DATA/floor_cache."""
+    baselines/floor.py); returns (and writes) the metrics, with a 95 % interval beside each F1 from
+    `bootstrap` draws over the frames (0: none). The floor's prior search is cached in DATA/floor_cache."""
+    check_draws(bootstrap)
     run_dir = Path(run_dir)
     device_ = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     built, config = load_model(run_dir, device_)
@@ -136,7 +142,9 @@ def evaluate(
     ground_truth = graphs_from_table(read_graph_table(data_dir), data_dir)
     pairs = [(predictions[frame_id], ground_truth[frame_id]) for frame_id in sorted(predictions)]
     metric_params = MetricParams(bev_range=default_range(data_dir))
-    scores = score_pairs(pairs, metric_params)
+    # each frame's counts: the bootstrap's intervals now, and `cli report`'s paired ones (FRAME_COUNTS)
+    scores, frame_counts = score_frames(pairs, metric_params)
+    add_intervals(scores, frame_counts, bootstrap)
     scores.update(pred=str(run_dir / "predictions.parquet"), gt=str(data_dir), frames_predicted=len(pairs))
     timed = len(dataset) - warmup_frames
     metrics = {
@@ -169,5 +177,6 @@ def evaluate(
     schema = io.SCHEMAS["graphs"].with_metadata({TARGETS_KEY: json.dumps(run.get("targets", {}))})
     table = pa.Table.from_pylist(rows, schema)
     io.write_atomic(run_dir / "predictions.parquet", lambda tmp: pq.write_table(table, tmp))
+    write_frame_counts(run_dir / FRAME_COUNTS, sorted(predictions), frame_counts)
     io.write_json(run_dir / "metrics.json", metrics)
     return metrics

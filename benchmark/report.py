@@ -5,19 +5,27 @@ Reads what `cli eval` (RUN/metrics.json, predictions.parquet, config.json, run.j
 scores by junction count, which score each run's predictions.parquet on subsets of its frames with
 the project's own metric. Runs are grouped in blocks, one per prepared dataset and split (read from
 the data's manifest.json): runs scored on different frames never share a table.
+
+Each F1 has a 95 % interval from a bootstrap over the block's frames (benchmark/bootstrap.py), drawn from
+the per-frame counts `cli eval` keeps (RUN/frame_counts.parquet); the summary calls a run's lead a lead
+only when the paired interval of the difference (same frames, same draws) excludes 0. With
+`reference="paper"`, the paper's published tables (benchmark/reference.py) stand beside the measured
+ones they match, as reference tables of their own. Paths are written relative to the working directory.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from benchmark import figures
+from benchmark import bootstrap, figures
 from benchmark.metrics import MetricParams, densify
+from benchmark.reference import SCORE_KEYS, ReferenceTable, load_reference
 from benchmark.score import graphs_from_table, read_graph_table, score_pairs
 from pipeline.geometry import Range
 from pipeline.io import write_atomic
@@ -54,8 +62,32 @@ JUNCTION_DEFINITION = (
 
 FLOOR_NOTE = (
     "Rows `constant prior` and `<run>: other log's sensors` are the sensor-blind floor (`cli eval`): what "
-    "a model that ignores its frame's sensors scores on the same frames."
+    "a model that ignores its frame's sensors scores on the same frames. Row `best constant (hindsight)`: "
+    "of the constant prior's candidate graphs, the one that scores best on these frames themselves, an "
+    "upper bound for any constant prediction (chosen on the evaluated frames, so not a blind model)."
 )
+REFERENCE_NOTE = (
+    "Tables headed *Reference* hold the paper's published numbers (benchmark/paper_reference.toml, each "
+    "from the LaTeX table named in its rows), not numbers measured here: the paper trained on the full "
+    "datasets on 8 RTX 3090 GPUs; each row's label names its schedule and the GPU of its FPS. They are "
+    "context for the measured tables beside them, never bolded, ranked or averaged with measured rows."
+)
+SYNTHETIC_NOTE = (
+    "These runs are on synthetic data (`cli synth`): the paper's rows are context for them, not a "
+    "like-for-like comparison."
+)
+UNKNOWN_ORIGIN_NOTE = (
+    "Whether these runs are on synthetic data is unknown: the raw data their dataset's manifest names is "
+    "gone. The paper's rows are context, not a like-for-like comparison."
+)
+# where each paper table is shown, for the list of those no measured table matched
+REFERENCE_PLACES = {
+    "tab:modeling": "under a dataset block of nuScenes or AV2 at 30 x 60 m on its own split",
+    "tab:iou": "beside the mIoU table of a nuScenes or AV2 block at 30 x 60 m on its own split",
+    "tab:postproc": "beside the post-processing accuracy of `--roundtrip` results",
+    "tab:perception_range": "under a dataset block prepared at 50 x 100 m",
+    "tab:newsplit": "under a dataset block prepared with `--split-file` (a geographic split)",
+}
 GRID_NOTE = "Each piece in its own colour, arrows in the driving direction, the ego car in grey."
 
 
@@ -71,6 +103,10 @@ class Run:
     world_size: int | None
     log: list[dict] = field(default_factory=list)
     reasons: list[str] = field(default_factory=list)  # why it has no scores
+    frame_ids: list[str] = field(default_factory=list)  # sorted; the rows of counts
+    counts: np.ndarray | None = None  # per-frame metric sums (bootstrap.FRAME_COUNTS); None: see no_counts
+    no_counts: str = ""  # why a scored run has no per-frame counts (so no intervals)
+    intervals: dict | None = None  # {mode: {metric: [low, high]}} of each F1, drawn for its block
 
     @property
     def scored(self) -> bool:
@@ -88,6 +124,22 @@ class Run:
     def score(self, mode: str, metric: str, stat: str = "f1") -> float:
         return float(self.metrics[mode][metric][stat])
 
+    def f1_cell(self, mode: str, metric: str) -> str:
+        """The F1 in %, then its 95 % interval when drawn."""
+        cell = percent(self.score(mode, metric))
+        if self.intervals:
+            low, high = self.intervals[mode][metric]
+            cell += f" [{percent(low)}, {percent(high)}]"
+        return cell
+
+    def f1_text(self, mode: str, metric: str) -> str:
+        """The F1 in words: "40.7 % (95 % interval 22.5-55.1 %)"."""
+        text = f"{percent(self.score(mode, metric))} %"
+        if self.intervals:
+            low, high = self.intervals[mode][metric]
+            text += f" (95 % interval {percent(low)}-{percent(high)} %)"
+        return text
+
     def floor_f1(self, mode: str, metric: str) -> float | None:
         f1 = ((self.metrics or {}).get("floor") or {}).get("f1")
         return None if not f1 else f1[mode][metric]
@@ -101,6 +153,17 @@ class Block:
     data: Path | None
     split: str | None
     runs: list[Run]
+    manifest: dict = field(default_factory=dict)  # the data's manifest.json ({} when not found)
+    synthetic: bool | None = None  # made by `cli synth`; None: its raw data is gone, so unknown
+
+    @property
+    def name(self) -> str:
+        """The dataset's name as the report writes it: synthetic data says so."""
+        return f"{self.dataset} (synthetic, `cli synth`)" if self.synthetic else self.dataset
+
+    @property
+    def parameters(self) -> dict:
+        return self.manifest.get("parameters", {})
 
     @property
     def scored(self) -> list[Run]:
@@ -113,7 +176,14 @@ class Block:
     @property
     def title(self) -> str:
         frames = f", {self.scored[0].metrics['frames']} frames" if self.scored else ""
-        return f"{self.dataset}: `{self.data or 'data not found'}`, {self.split or '?'} split{frames}"
+        data = shown(self.data) if self.data else "data not found"
+        return f"{self.name}: `{data}`, {self.split or '?'} split{frames}"
+
+
+def shown(path: Path | str) -> str:
+    """A path as the report writes it: relative to the working directory, so that a report made in a
+    temporary folder (or moved) names no absolute path."""
+    return os.path.relpath(Path(path).absolute())
 
 
 def read_json(path: Path) -> dict:
@@ -152,6 +222,27 @@ def find_data(candidates: list) -> tuple[Path | None, str]:
     return None, "unknown"
 
 
+def is_synthetic(manifest: dict) -> bool | None:
+    """Whether a prepared dataset was made from `cli synth` output: its manifest names the raw root, and
+    synth writes its marker (synth.json) at most two folders above the roots it writes. None when the raw
+    root no longer exists (then nobody can tell)."""
+    from pipeline.synth import MARKER
+
+    if not manifest.get("root") or not Path(manifest["root"]).exists():
+        return None
+    root = Path(manifest["root"]).resolve()
+    for folder in (root, *list(root.parents)[:2]):
+        if (folder / MARKER).is_file():
+            try:
+                marker = json.loads((folder / MARKER).read_text())
+            except json.JSONDecodeError:
+                continue
+            roots = [marker.get(key) for key in ("av2_root", "nuscenes_root")]
+            if any(r and (folder / r).resolve() == root for r in roots):
+                return True
+    return False
+
+
 def load_run(path: Path, name: str) -> Run:
     """A run folder as found: a missing or unusable file becomes a reason, never an exception."""
     reasons, metrics, config, info = [], None, None, {}
@@ -162,7 +253,7 @@ def load_run(path: Path, name: str) -> Run:
         try:
             value = read_json(file)
         except ValueError as error:
-            reasons.append(str(error))
+            reasons.append(str(error).replace(str(file), shown(file), 1))
             continue
         config, info, metrics = (
             (value, info, metrics) if file_name == "config.json"
@@ -172,11 +263,11 @@ def load_run(path: Path, name: str) -> Run:
     if not (path / "checkpoint.pt").is_file():
         reasons.append("no checkpoint.pt (training did not finish)")
     if metrics is None and not (path / "metrics.json").is_file():
-        reasons.append(f"no metrics.json (not evaluated: `cli eval --run {path}`)")
+        reasons.append(f"no metrics.json (not evaluated: `cli eval --run {shown(path)}`)")
     elif metrics is not None:
         missing = [key for key in REQUIRED if key not in metrics]
         if missing:
-            reasons.append(f"{path / 'metrics.json'} lacks {', '.join(missing)} (re-run `cli eval`)")
+            reasons.append(f"{shown(path / 'metrics.json')} lacks {', '.join(missing)} (re-run `cli eval`)")
             metrics = None
     config = config or (metrics or {}).get("config")
     data, dataset = find_data([(metrics or {}).get("data"), info.get("data")])
@@ -186,7 +277,34 @@ def load_run(path: Path, name: str) -> Run:
         log = [json.loads(line) for line in (path / "log.jsonl").read_text().splitlines() if line.strip()]
     if metrics is None and not reasons:
         reasons.append("no metrics.json")
-    return Run(path, name, metrics, config, data, dataset, split, info.get("world_size"), log, reasons)
+    run = Run(path, name, metrics, config, data, dataset, split, info.get("world_size"), log, reasons)
+    if metrics is not None:
+        load_counts(run)
+    return run
+
+
+def load_counts(run: Run) -> None:
+    """The run's per-frame counts (sorted by frame id), checked against its metrics.json: they must hold
+    its frames and pool back to its F1 scores. Otherwise run.no_counts says why."""
+    file = run.path / bootstrap.FRAME_COUNTS
+    if not file.is_file():
+        run.no_counts = f"no {bootstrap.FRAME_COUNTS} (evaluated before per-frame counts: re-run `cli eval`)"
+        return
+    try:
+        frame_ids, counts = bootstrap.read_frame_counts(file)
+    except ValueError as error:
+        run.no_counts = str(error).replace(str(file), shown(file), 1)
+        return
+    order = np.argsort(frame_ids, kind="stable")
+    frame_ids, counts = [frame_ids[i] for i in order], counts[order]
+    if len(frame_ids) != run.metrics["frames"]:
+        run.no_counts = f"{shown(file)} holds {len(frame_ids)} frames, metrics.json {run.metrics['frames']}"
+        return
+    pooled = bootstrap.pooled_f1(counts, np.ones((1, len(counts))))
+    if any(abs(f1[0] - run.score(*key)) > 1e-9 for key, f1 in pooled.items()):
+        run.no_counts = f"{shown(file)} does not pool to the F1 of metrics.json (re-run `cli eval`)"
+        return
+    run.frame_ids, run.counts = frame_ids, counts
 
 
 def load_runs(paths: list[Path]) -> list[Run]:
@@ -203,6 +321,9 @@ def group_blocks(runs: list[Run]) -> list[Block]:
         blocks.setdefault(key, Block(run.dataset, run.data, run.split, [])).runs.append(run)
     for block in blocks.values():
         check_metric_params(block.scored)
+        if block.data is not None:
+            block.manifest = read_json(block.data / "manifest.json")
+            block.synthetic = is_synthetic(block.manifest)
     return [blocks[key] for key in sorted(blocks)]
 
 
@@ -257,8 +378,9 @@ SCORE_HEADER = [
 
 
 def main_table(block: Block) -> tuple[list[str], list[list[str]]]:
-    """Tab. 1's layout: a row per run, then the sensor-blind floor rows; the best F1 of each column
-    (among the runs) in bold. Scores in %."""
+    """Tab. 1's layout: a row per run, then the sensor-blind floor rows and the best constant in
+    hindsight; the best F1 of each column (among the runs) in bold. Scores in %, each run's F1 with its
+    95 % interval when drawn."""
     header = [
         "run",
         "method",
@@ -274,7 +396,8 @@ def main_table(block: Block) -> tuple[list[str], list[list[str]]]:
     rows, values = [], []
     for run in block.scored:
         m = run.metrics
-        cells = score_cells(m)
+        cells = [run.f1_cell(mode, metric) if stat == "f1" else percent(m[mode][metric][stat])
+                 for mode in MODES for metric in METRICS for stat in STATS]  # fmt: skip
         values.append([float(m[mode][metric]["f1"]) for mode in MODES for metric in METRICS])
         gflops = f"{m['gflops']:.2f}" if m.get("gflops") is not None else "–"
         extra = [f"{m['params'] / 1e6:.2f}", gflops, f"{m['fps_net']:.1f}", f"{m['fps']:.1f}"]
@@ -284,17 +407,22 @@ def main_table(block: Block) -> tuple[list[str], list[list[str]]]:
     for row, cells in zip(rows, f1_cells):
         for i, cell in zip(f1_at, cells):
             row[4 + i] = cell
-    priors = {}
+    priors, best = {}, {}
     for run in block.scored:
         floor = run.metrics.get("floor") or {}
         prior = floor.get("constant_prior")
         if prior:
             label = f"GT of {prior['frame_id']} ({prior.get('split', 'train')})"
             priors[prior["frame_id"]] = ["constant prior", label, "–", "none", *score_cells(prior)]
+        if floor.get("best_constant"):
+            constant = floor["best_constant"]
+            label = f"GT of {constant['frame_id']} ({constant.get('split', 'train')})"
+            cells = score_cells(constant)
+            best[constant["frame_id"]] = ["best constant (hindsight)", label, "–", "none", *cells]
         if floor.get("other_log_sensors"):
             cells = score_cells(floor["other_log_sensors"])
             rows.append([f"{run.name}: other log's sensors", run.method, "–", run.modality, *cells])
-    rows += list(priors.values())
+    rows += list(priors.values()) + list(best.values())
     for row in rows:
         row += ["–"] * (len(header) - len(row))
     for run in block.runs:
@@ -386,7 +514,7 @@ def ablation_table(name: str, runs: list[Run]) -> tuple[list[str], list[list[str
     for run in runs:
         value = flat_value(run.config, name)
         values.append([run.score(mode, metric) for mode, metric in F1_COLUMNS])
-        rows.append([str(value), run.name] + [percent(v) for v in values[-1]])
+        rows.append([str(value), run.name] + [run.f1_cell(mode, metric) for mode, metric in F1_COLUMNS])
     cells = [row[2:] for row in rows]
     bold_best(cells, values)
     for row, run, cell in zip(rows, runs, cells):
@@ -504,7 +632,9 @@ def roundtrip_tables(
                     f"{path}: scored with other metric parameters ({', '.join(differ)}) than "
                     f"{members[0][0]}; they cannot share a table"
                 )
-        _, dataset = find_data([data])
+        found, dataset = find_data([data])
+        if found is not None and is_synthetic(read_json(found / "manifest.json")):
+            dataset = f"{dataset} (synthetic, `cli synth`)"
         rows = []
         for path, result in sorted(
             members, key=lambda m: list(VIA_NAMES).index(m[1]["via"]) if m[1]["via"] in VIA_NAMES else 9
@@ -514,19 +644,95 @@ def roundtrip_tables(
                 [name, path.name, str(result["frames"]), *score_cells(result), percent(result.get("miou"))]
             )
         header = ["representation", "file", "frames", *SCORE_HEADER, "mIoU"]
-        tables.append((f"{dataset}: `{data}`", header, rows, params))
+        tables.append((f"{dataset}: `{shown(data) if found else data}`", header, rows, params))
     return tables
+
+
+# ---------------------------------------------------------------------------------------------------
+# The paper's tables beside the measured ones (--reference paper)
+
+REFERENCE_LEADS = (("method", "method"), ("modeling", "modeling"), ("via", "representation"),
+                   ("modality", "modality"))  # fmt: skip
+REFERENCE_EXTRAS = (("params_m", "Params (M)"), ("fps_net", "FPS_net"), ("fps", "FPS"), ("miou", "mIoU"))
+
+
+def reference_table(table: ReferenceTable, rows: list[dict]) -> tuple[list[str], list[list[str]]]:
+    """The paper's rows in the report's own column names and units (scores in %): the columns the table
+    has, in Tab. 1's order; the first cell of a row names its source table, schedule and FPS GPU."""
+    leads = [(key, title) for key, title in REFERENCE_LEADS if any(key in row for row in rows)]
+    if table.field:
+        leads.insert(0, ("value", FIELD_NAMES.get(table.field, table.field)))
+    scores = [(mode, metric, stat) for mode in MODES for metric in METRICS for stat in STATS
+              if any(SCORE_KEYS[mode, metric] in row for row in rows)]  # fmt: skip
+    extras = [(key, title) for key, title in REFERENCE_EXTRAS if any(key in row for row in rows)]
+    header = ["reference", *(title for _, title in leads)]
+    header += [f"{SHORT[mode]} {SHORT[metric]} {SHORT[stat]}" for mode, metric, stat in scores]
+    header += [title for _, title in extras]
+    body = []
+    for row in rows:
+        cells = [table.row_label(row)] + [str(row.get(key, "–")) for key, _ in leads]
+        for mode, metric, stat in scores:
+            values = row.get(SCORE_KEYS[mode, metric])
+            cells.append(percent(values[STATS.index(stat)]) if values else "–")
+        cells += [f"{row[key]:.1f}" if key in row else "–" for key, _ in extras]
+        body.append(cells)
+    return header, body
+
+
+def reference_section(table: ReferenceTable, rows: list[dict], dataset: str | None = None) -> list[str]:
+    heading = f"#### Reference: {table.describe(dataset)}"
+    return [heading, "", markdown_table(*reference_table(table, rows)), ""]
+
+
+def main_references(block: Block, refs: dict[str, ReferenceTable]) -> list[tuple[ReferenceTable, list[dict]]]:
+    """The paper's tables that match a block's main table: Tab. 1 at its 30 x 60 m range on the
+    dataset's own split, the 50 x 100 m table, the geographic split's table; only rows of its dataset."""
+    bev_range, geographic = block.parameters.get("bev_range"), bool(block.parameters.get("split_files"))
+    labels = ["tab:perception_range"] if bev_range == "50x100" else []
+    labels += ["tab:newsplit"] if geographic else []
+    labels += ["tab:modeling"] if bev_range == "30x60" and not geographic else []
+    found = [(refs[label], refs[label].rows_of(block.dataset)) for label in labels if label in refs]
+    return [(table, rows) for table, rows in found if rows]
+
+
+def unplaced_references(refs: dict[str, ReferenceTable], placed: set[str]) -> list[str]:
+    """A line for each paper table no measured table matched: where it would have been shown."""
+    lines = []
+    for label, table in refs.items():
+        if label in placed:
+            continue
+        if table.field:
+            where = f"beside an ablation of `{table.field}` (runs whose configs differ in that field alone)"
+        else:
+            where = REFERENCE_PLACES.get(label, "beside a matching measured table")
+        lines.append(f"- `{label}`, {table.title}: shown {where}.")
+    return lines
 
 
 # ---------------------------------------------------------------------------------------------------
 # Summary and the report
 
 
-def summary(blocks: list[Block]) -> str:
-    """One paragraph in words, generated from the numbers."""
+def paired_difference(first: Run, second: Run, draws: int) -> dict | str:
+    """{mode: {metric: [low, high]}}: the 95 % interval of first's F1 minus second's from the paired
+    bootstrap (same frames, same draws); or why there is none."""
+    if draws == 0:
+        return "no bootstrap (`--bootstrap 0`)"
+    for run in (first, second):
+        if run.counts is None:
+            return f"{run.name}: {run.no_counts}"
+    if first.frame_ids != second.frame_ids:
+        return "the two were scored on other frames"
+    return bootstrap.paired(first.counts, second.counts, draws)
+
+
+def summary(blocks: list[Block], draws: int = bootstrap.DRAWS) -> str:
+    """One paragraph in words, generated from the numbers. A run "leads" only where the paired interval
+    of its difference to the next run excludes 0; where it holds 0 the two are "level"."""
     sentences = []
     for block in blocks:
-        scored, where = block.scored, f"On {block.dataset} ({block.split or '?'} split)"
+        synthetic = "synthetic " if block.synthetic else ""
+        scored, where = block.scored, f"On {synthetic}{block.dataset} ({block.split or '?'} split)"
         unscored = [run.name for run in block.runs if not run.scored]
         if not scored:
             sentences.append(
@@ -537,11 +743,12 @@ def summary(blocks: list[Block]) -> str:
             run = scored[0]
             sentences.append(
                 f"{where} the one scored run, {run.name} ({run.method}, {run.modality}), reaches directed "
-                f"TOPO F1 {percent(run.score('directed', 'topo'))} % and directed Junction TOPO F1 "
-                f"{percent(run.score('directed', 'junction_topo'))} %."
+                f"TOPO F1 {run.f1_text('directed', 'topo')} and directed Junction TOPO F1 "
+                f"{run.f1_text('directed', 'junction_topo')}."
             )
         else:
             leads: dict[str, list[str]] = {}
+            differences: dict[tuple[int, int], dict | str] = {}
             for mode, metric in F1_COLUMNS:
                 ranked = sorted(scored, key=lambda r: -r.score(mode, metric))
                 first, second = ranked[0], ranked[1]
@@ -551,10 +758,25 @@ def summary(blocks: list[Block]) -> str:
                     leads.setdefault(f"{first.name} and {second.name} tie", []).append(
                         f"{name} ({percent(a)} %)"
                     )
-                else:
-                    lead = f"+{100 * (a - b):.1f} points"
-                    text = f"{name} ({percent(a)} % vs {percent(b)} % for {second.name}, {lead})"
+                    continue
+                pair = (id(first), id(second))
+                if pair not in differences:
+                    differences[pair] = paired_difference(first, second, draws)
+                lead, difference = f"{100 * (a - b):+.1f} points", differences[pair]
+                if isinstance(difference, str):
+                    text = f"{name} ({percent(a)} % vs {percent(b)} %, {lead}; not tested: {difference})"
+                    leads.setdefault(f"{first.name} is ahead of {second.name}", []).append(text)
+                    continue
+                low, high = (100 * v for v in difference[mode][metric])
+                interval = f"[{low:+.1f}, {high:+.1f}]"
+                if low > 0:
+                    text = (f"{name} ({percent(a)} % vs {percent(b)} % for {second.name}, {lead}, 95 % "
+                            f"interval of the difference {interval})")  # fmt: skip
                     leads.setdefault(f"{first.name} leads", []).append(text)
+                else:
+                    text = (f"{name} ({percent(a)} % vs {percent(b)} %: the 95 % interval of the difference, "
+                            f"{interval} points, holds 0)")  # fmt: skip
+                    leads.setdefault(f"{first.name} is level with {second.name}", []).append(text)
             parts = [f"{who} on {', '.join(items)}" for who, items in leads.items()]
             sentences.append(f"{where} " + "; ".join(parts) + ".")
         for run in scored:
@@ -577,17 +799,29 @@ class Report:
     blocks: list[Block]
     pictures: list[Path]
     grids: dict[str, tuple[int, int]]  # picture file name -> (rows, columns) of its panel grid
+    # per block (in blocks' order): the paper's tables beside its main table, (heading, header, rows)
+    references: list[list[tuple[str, list[str], list[list[str]]]]] = field(default_factory=list)
 
 
-def write_report(runs: list[Path], out: Path, roundtrips: list[Path] = (), workers: int = 1) -> Report:
-    """Write out/report.md and the PNGs it links; returns what was written."""
+def write_report(
+    runs: list[Path], out: Path, roundtrips: list[Path] = (), workers: int = 1, reference: str | None = None,
+    draws: int = bootstrap.DRAWS,
+) -> Report:  # fmt: skip
+    """Write out/report.md and the PNGs it links; returns what was written. `reference="paper"` places
+    the paper's tables beside the measured ones; `draws`: bootstrap draws of the intervals (0: none)."""
     out = Path(out)
+    bootstrap.check_draws(draws)
+    refs = load_reference(reference) if reference else {}
     blocks = group_blocks(load_runs(runs))
     trips = load_roundtrips(list(roundtrips))
     trip_tables = roundtrip_tables(trips)  # checked before anything is written
+    for block in blocks:
+        for run in block.scored:
+            if draws and run.counts is not None:
+                run.intervals = bootstrap.intervals(run.counts, draws)
     out.mkdir(parents=True, exist_ok=True)
-    pictures, grids = [], {}
-    md = ["# Lane-graph report", "", summary(blocks), ""]
+    pictures, grids, placed, shown_references = [], {}, set(), []
+    md = ["# Lane-graph report", "", summary(blocks, draws), ""]
     md += [
         "Scores are in % (precision P, recall R, F1) of the TOPO and Junction TOPO metrics "
         "(docs/METRICS.md), directed (dir) and undirected (undir), as `cli eval` wrote them in each run's "
@@ -596,25 +830,62 @@ def write_report(runs: list[Path], out: Path, roundtrips: list[Path] = (), worke
         "(none when all tie).",
         "",
     ]
+    if draws:
+        md += [
+            "[low, high] beside a run's F1: its 95 % interval, a bootstrap over the block's frames "
+            f"({draws} draws of the frames with replacement, seed {bootstrap.SEED}, the matched counts "
+            "pooled again; benchmark/bootstrap.py). The summary's leads use the paired interval of two "
+            "runs' difference (same frames, same draws).",
+            "",
+        ]
+    if refs:
+        md += [REFERENCE_NOTE, ""]
+    md += [f"Paths are relative to the folder `cli report` ran in (`{shown(out)}` holds this report).", ""]
     for index, block in enumerate(blocks, 1):
         slug = f"{index}_{block.dataset}"
         md += [f"## {block.title}", "", "### Main table (paper Tab. 1)", ""]
         md += [markdown_table(*main_table(block)), ""]
+        md += [f"- {run.name}: no F1 intervals: {run.no_counts}." for run in block.scored if run.no_counts]
+        md += [""] if any(run.no_counts for run in block.scored) else []
+        beside = main_references(block, refs) if refs else []
+        shown_references.append([])
+        if refs:
+            if block.synthetic:
+                md += [SYNTHETIC_NOTE, ""]
+            elif block.synthetic is None:
+                md += [UNKNOWN_ORIGIN_NOTE, ""]
+            if not beside:
+                where = f"{block.dataset} at range {block.parameters.get('bev_range', '?')}"
+                where += ", prepared with --split-file" if block.parameters.get("split_files") else ""
+                md += [f"No table of the paper matches this block ({where}).", ""]
+        for table, rows in beside:
+            md += reference_section(table, rows, block.dataset)
+            shown_references[-1].append((f"Reference: {table.describe(block.dataset)}",
+                                         *reference_table(table, rows)))  # fmt: skip
+            placed.add(table.label)
         md += [FLOOR_NOTE, ""]
         md += [f"- {note}" for note in floor_notes(block)] + [""]
         md += [markdown_table(*settings_table(block)), ""]
         params_text = params_line(block.metric_params) if block.metric_params else "–"
+        data_text = shown(block.data) if block.data else "not found"
         md += [
-            f"Data: `{block.data}`, split {block.split}. Metric parameters (every run of it): {params_text}.",
+            f"Data: `{data_text}`, split {block.split}. Metric parameters (every run of it): {params_text}.",
             "",
         ]
         if not block.scored:
             continue
         md += ["### mIoU (paper Tab. 9)", "", markdown_table(*miou_table(block)), ""]
+        if any(table.label == "tab:modeling" for table, _ in beside) and "tab:iou" in refs:
+            md += reference_section(refs["tab:iou"], refs["tab:iou"].rows_of(block.dataset), block.dataset)
+            placed.add("tab:iou")
         for name, members in ablations(block):
             md += [f"### Ablation: {FIELD_NAMES.get(name, name)} (`{name}`)", ""]
             md += ["Runs whose saved configs differ in this field alone.", ""]
             md += [markdown_table(*ablation_table(name, members)), ""]
+            for table in refs.values():
+                if table.field == name:
+                    md += reference_section(table, table.rows)
+                    placed.add(table.label)
         if block.data is None:
             md += ["The data folder was not found: no scores by junction count and no frame grid.", ""]
             continue
@@ -661,6 +932,13 @@ def write_report(runs: list[Path], out: Path, roundtrips: list[Path] = (), worke
                 f"Metric parameters: {params_line(params)}.",
                 "",
             ]
+        if "tab:postproc" in refs:
+            md += reference_section(refs["tab:postproc"], refs["tab:postproc"].rows)
+            placed.add("tab:postproc")
+    unplaced = unplaced_references(refs, placed)
+    if unplaced:
+        md += ["## The paper's tables not shown", ""]
+        md += ["No measured table here matches these; each is shown when one does.", "", *unplaced, ""]
     curves = {}
     for block in blocks:
         for run in block.runs:
@@ -676,4 +954,4 @@ def write_report(runs: list[Path], out: Path, roundtrips: list[Path] = (), worke
     text = "\n".join(md).rstrip() + "\n"
     path = out / "report.md"
     write_atomic(path, lambda tmp: tmp.write_text(text))
-    return Report(path, blocks, pictures, grids)
+    return Report(path, blocks, pictures, grids, shown_references)

@@ -23,12 +23,22 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from benchmark.report import JUNCTION_BUCKETS, junction_count, write_report
-from benchmark.score import graphs_from_table, read_graph_table, score_pairs
+from benchmark import bootstrap
+from benchmark.reference import load_reference
+from benchmark.report import (
+    JUNCTION_BUCKETS,
+    REFERENCE_NOTE,
+    SYNTHETIC_NOTE,
+    UNKNOWN_ORIGIN_NOTE,
+    junction_count,
+    write_report,
+)
+from benchmark.score import graphs_from_table, read_graph_table, score_frames, score_pairs
 from cli import app
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
 
+AV2, NUSC = "## av2 (synthetic, `cli synth`):", "## nuscenes (synthetic, `cli synth`):"  # block headings
 SCORE_KEYS = [(mode, metric, stat) for mode in ("directed", "undirected")
               for metric in ("junction_topo", "topo") for stat in ("precision", "recall", "f1")]  # fmt: skip
 
@@ -73,7 +83,10 @@ def made(tmp_path_factory) -> dict:
         predicted[f] = LaneGraph(g.x + np.float32(0.2), g.y, g.src[keep], g.dst[keep])
     pq.write_table(graph_rows(predicted), oracle / "predictions.parquet")
     metrics = json.loads((oracle / "metrics.json").read_text())
-    scores = score_pairs([(predicted[f], gt[f]) for f in frames], MetricParams(**metrics["metric_params"]))
+    pairs = [(predicted[f], gt[f]) for f in frames]
+    scores, counts = score_frames(pairs, MetricParams(**metrics["metric_params"]))
+    bootstrap.add_intervals(scores, counts)
+    bootstrap.write_frame_counts(oracle / bootstrap.FRAME_COUNTS, frames, counts)
     metrics.update({k: scores[k] for k in ("directed", "undirected", "miou")}, fps=2 * metrics["fps"])
     metrics["config"]["train"]["epochs"] = 2
     (oracle / "metrics.json").write_text(json.dumps(metrics))
@@ -92,7 +105,7 @@ def made(tmp_path_factory) -> dict:
     for via, path in zip(("path", "piece"), trips):
         roundtrip(av2, via, path)
     out = root / "report"
-    report = write_report([runs, nusc_run], out, trips)
+    report = write_report([runs, nusc_run], out, trips, reference="paper")
     return {"root": root, "av2": av2, "runs": runs, "out": out, "report": report, "trips": trips,
             "text": (out / "report.md").read_text()}  # fmt: skip
 
@@ -118,7 +131,8 @@ def first_table(text: str) -> tuple[list[str], list[list[str]]]:
 
 
 def number(cell: str) -> float:
-    return float(cell.strip("*"))
+    """The score of a cell, without its bold and its interval."""
+    return float(cell.strip("*").split(" [")[0])
 
 
 def run_metrics(made, name: str) -> dict:
@@ -128,17 +142,17 @@ def run_metrics(made, name: str) -> dict:
 
 def test_every_table_is_there(made):
     text = made["text"]
-    for heading in ("## av2:", "### Main table", "### mIoU", "### Ablation: epochs (`train.epochs`)",
-                    "### Scores by junction count", "### Frames", "### F1 by run", "## nuscenes:",
+    for heading in (AV2, "### Main table", "### mIoU", "### Ablation: epochs (`train.epochs`)",
+                    "### Scores by junction count", "### Frames", "### F1 by run", NUSC,
                     "## Post-processing accuracy", "## Training loss"):  # fmt: skip
         assert any(line.startswith(heading) for line in text.splitlines()), heading
 
 
 def test_main_table_holds_each_runs_metrics_json(made):
-    for block, names in (("## av2:", ["lanegap_lidar", "path_oracle"]), ("## nuscenes:", ["lanegap_nusc"])):
+    for block, names in ((AV2, ["lanegap_lidar", "path_oracle"]), (NUSC, ["lanegap_nusc"])):
         header, rows = first_table(section(section(made["text"], block), "### Main table"))
         by_run = {row[0]: row for row in rows}
-        assert {n for n in by_run if not n.startswith(("constant", "crashed"))} <= set(names)
+        assert {n for n in by_run if not n.startswith(("constant", "best constant", "crashed"))} <= set(names)
         for name in names:
             metrics, row = run_metrics(made, name), by_run[name]
             for (mode, metric, stat), cell in zip(SCORE_KEYS, row[4:16]):
@@ -154,12 +168,12 @@ def test_main_table_holds_each_runs_metrics_json(made):
             assert abs(float(row[19]) - metrics["fps"]) <= 0.05 + 1e-9
             assert row[1:4] == ["LaneGAP", metrics["modeling"], "lidar"]
     # runs of the other dataset never share the block
-    assert "lanegap_nusc" not in section(made["text"], "## av2:")
-    assert "path_oracle" not in section(made["text"], "## nuscenes:")
+    assert "lanegap_nusc" not in section(made["text"], AV2)
+    assert "path_oracle" not in section(made["text"], NUSC)
 
 
 def test_floor_rows_and_settings(made):
-    av2 = section(made["text"], "## av2:")
+    av2 = section(made["text"], AV2)
     _, rows = first_table(section(av2, "### Main table"))
     prior = run_metrics(made, "lanegap_lidar")["floor"]["constant_prior"]
     (row,) = [r for r in rows if r[0] == "constant prior"]
@@ -168,11 +182,11 @@ def test_floor_rows_and_settings(made):
         assert abs(number(cell) - 100 * prior[mode][metric][stat]) <= 0.05 + 1e-9
     _, settings = first_table(av2.split("sensor-blind floor")[-1])
     assert ["lanegap_lidar", "cpu", "tiny", "1 / 1", "2", "1", "val"] in settings  # the preset's batch
-    assert "evaluated with `--no-floor`" in section(made["text"], "## nuscenes:")
+    assert "evaluated with `--no-floor`" in section(made["text"], NUSC)
 
 
 def test_bold_is_the_best_f1_of_each_column(made):
-    header, rows = first_table(section(section(made["text"], "## av2:"), "### Main table"))
+    header, rows = first_table(section(section(made["text"], AV2), "### Main table"))
     runs = [r for r in rows if r[0] in ("lanegap_lidar", "path_oracle")]
     f1_columns = [i for i, name in enumerate(header) if name.endswith("F1")]
     assert len(f1_columns) == 4
@@ -185,7 +199,7 @@ def test_bold_is_the_best_f1_of_each_column(made):
 
 
 def test_incomplete_run_appears_with_its_reason(made):
-    _, rows = first_table(section(section(made["text"], "## av2:"), "### Main table"))
+    _, rows = first_table(section(section(made["text"], AV2), "### Main table"))
     (row,) = [r for r in rows if r[0] == "crashed"]
     assert row[1].startswith("not scored:") and "no checkpoint.pt" in row[1] and "no metrics.json" in row[1]
     assert "1 run(s) have no scores: crashed" in made["text"]
@@ -200,7 +214,7 @@ def test_summary_names_the_leader_with_its_numbers(made):
 
 
 def test_miou_ablation_and_roundtrip_tables(made):
-    av2 = section(made["text"], "## av2:")
+    av2 = section(made["text"], AV2)
     _, rows = first_table(section(av2, "### mIoU"))
     for row in rows:
         assert abs(number(row[3]) - 100 * run_metrics(made, row[0])["miou"]) <= 0.05 + 1e-9
@@ -213,6 +227,138 @@ def test_miou_ablation_and_roundtrip_tables(made):
         assert row[1] == path.name and int(row[2]) == result["frames"]
         for (mode, metric, stat), cell in zip(SCORE_KEYS, row[3:15]):
             assert abs(number(cell) - 100 * result[mode][metric][stat]) <= 0.05 + 1e-9
+
+
+def test_the_papers_rows_stand_beside_the_measured_tables(made):
+    """Tab. 1 and tab:iou under each dataset's block, tab:schedule beside the ablation of epochs,
+    tab:postproc beside the round trips; every number read back equals the data file's."""
+    from test_report_reference import assert_row_equals, numbers_of
+
+    refs, text = load_reference(), made["text"]
+
+    def check(part: str, label: str, rows_expected: list[dict], lead: str | None = None) -> None:
+        header, rows = first_table(section(part, "#### Reference:"))
+        assert len(rows) == len(rows_expected) > 0
+        for row, expected in zip(rows, rows_expected):
+            assert row[0].startswith(f"paper `{label}`") and not any("**" in cell for cell in row)
+            assert lead is None or row[1] == str(expected[lead])
+            assert_row_equals(numbers_of(header, row), expected)
+
+    for block, dataset, epochs in ((AV2, "av2", "24 epochs"), (NUSC, "nuscenes", "110 epochs")):
+        main = section(section(text, block), "### Main table")
+        assert SYNTHETIC_NOTE in main
+        check(main, "tab:modeling", refs["tab:modeling"].rows_of(dataset), "method")
+        header, rows = first_table(section(main, "#### Reference:"))
+        assert all(f"{epochs}, FPS on one RTX 3090" in row[0] for row in rows)
+        _, measured = first_table(main)
+        assert not any(row[0].startswith("paper") for row in measured)  # never mixed with measured rows
+        check(
+            section(section(text, block), "### mIoU"), "tab:iou", refs["tab:iou"].rows_of(dataset), "method"
+        )
+    check(
+        section(section(text, AV2), "### Ablation: epochs"),
+        "tab:schedule",
+        refs["tab:schedule"].rows,
+        "value",
+    )
+    check(section(text, "## Post-processing accuracy"), "tab:postproc", refs["tab:postproc"].rows, "via")
+    rest = section(text, "## The paper's tables not shown")
+    for label in refs:
+        placed = label in ("tab:modeling", "tab:iou", "tab:schedule", "tab:postproc")
+        assert (f"- `{label}`" in rest) != placed, label
+    assert REFERENCE_NOTE in text
+
+
+def test_each_f1_has_its_interval_from_the_runs_frame_counts(made):
+    header, rows = first_table(section(section(made["text"], AV2), "### Main table"))
+    by_run = {row[0]: row for row in rows}
+    oracle = bootstrap.read_frame_counts(made["runs"] / "path_oracle" / bootstrap.FRAME_COUNTS)[1]
+    drawn = {"lanegap_lidar": run_metrics(made, "lanegap_lidar"), "path_oracle": None}
+    for mode in ("directed", "undirected"):
+        for metric, short in (("topo", "TOPO"), ("junction_topo", "J-TOPO")):
+            at = header.index(f"{'dir' if mode == 'directed' else 'undir'} {short} F1")
+            for name, metrics in drawn.items():
+                low, high = map(float, re.search(r"\[(\S+), (\S+)\]", by_run[name][at]).groups())
+                # cli eval's own interval (same draws) for the model; the oracle's from its counts
+                expected = (
+                    metrics[mode][metric]["f1_ci"] if metrics else bootstrap.intervals(oracle)[mode][metric]
+                )
+                assert (
+                    abs(low - 100 * expected[0]) <= 0.05 + 1e-9
+                    and abs(high - 100 * expected[1]) <= 0.05 + 1e-9
+                )
+                assert low <= number(by_run[name][at]) <= high
+    assert "95 % interval of the difference [+" in made["text"].split("\n\n")[1]
+
+
+def rescored(run: Path, av2: Path, change) -> None:
+    """Rewrite a run folder's predictions with change(frame_id, graph), and its scores and counts."""
+    from benchmark.metrics import MetricParams
+
+    gt = graphs_from_table(read_graph_table(av2), av2)
+    predicted = graphs_from_table(read_graph_table(run / "predictions.parquet"), run)
+    predicted = {f: change(f, g) for f, g in predicted.items()}
+    pq.write_table(graph_rows(predicted), run / "predictions.parquet")
+    metrics = json.loads((run / "metrics.json").read_text())
+    frames = sorted(predicted)
+    scores, counts = score_frames(
+        [(predicted[f], gt[f]) for f in frames], MetricParams(**metrics["metric_params"])
+    )
+    bootstrap.write_frame_counts(run / bootstrap.FRAME_COUNTS, frames, counts)
+    metrics.update({k: scores[k] for k in ("directed", "undirected", "miou")})
+    (run / "metrics.json").write_text(json.dumps(metrics))
+
+
+def test_a_lead_inside_the_noise_is_level_and_cli_report_prints_the_reference(made, tmp_path):
+    runs = tmp_path / "runs"
+    shutil.copytree(made["runs"] / "path_oracle", runs / "oracle_a")
+    shutil.copytree(made["runs"] / "path_oracle", runs / "oracle_b")
+    first = min(graphs_from_table(read_graph_table(runs / "oracle_b" / "predictions.parquet"), runs))
+    # oracle_b loses the last edge of one frame out of four: a lower F1 that most draws cannot tell
+    rescored(runs / "oracle_b", made["av2"],
+             lambda f, g: LaneGraph(g.x, g.y, g.src[:-1], g.dst[:-1]) if f == first else g)  # fmt: skip
+    args = ["report", "--runs", str(runs), "--out", str(tmp_path / "r"), "--reference", "paper"]
+    result = CliRunner().invoke(app, args, env={"COLUMNS": "250"})
+    assert result.exit_code == 0, result.output
+    assert "Reference: the paper's Tab. 1" in result.output and "report: " in result.output
+    assert "paper tab:modeling, 24 epochs, FPS on one RTX 3090 │ LaneGAP  │ 61.6" in result.output
+    summary = (tmp_path / "r" / "report.md").read_text().split("\n\n")[1]
+    assert "oracle_a is level with oracle_b on directed TOPO F1" in summary and "leads" not in summary
+    assert "points, holds 0)" in summary
+    # without draws: no intervals, and no lead claimed
+    result = CliRunner().invoke(app, args + ["--bootstrap", "0"])
+    assert result.exit_code == 0, result.output
+    text = (tmp_path / "r" / "report.md").read_text()
+    assert "not tested: no bootstrap (`--bootstrap 0`)" in text.split("\n\n")[1]
+    _, rows = first_table(section(text, "### Main table"))
+    assert not any("[" in cell for row in rows for cell in row)
+    # counts that do not pool to the run's scores give no interval, and say why
+    shutil.copy(
+        made["runs"] / "lanegap_lidar" / bootstrap.FRAME_COUNTS, runs / "oracle_b" / bootstrap.FRAME_COUNTS
+    )
+    assert CliRunner().invoke(app, args).exit_code == 0
+    text = (tmp_path / "r" / "report.md").read_text()
+    assert "oracle_b: no F1 intervals:" in text and "does not pool to the F1 of metrics.json" in text
+    assert "oracle_a is ahead of oracle_b" in text.split("\n\n")[1]
+    result = CliRunner().invoke(app, args[:-1] + ["book"])
+    assert result.exit_code == 1 and "--reference must be paper, not 'book'" in result.output
+
+
+def test_the_report_writes_relative_paths(made, monkeypatch):
+    text = made["text"]
+    assert not re.search(r"(^|[\s`(])/[\w.-]+/", text, re.M)  # no absolute path anywhere
+    data = re.search(r"^## av2 \(synthetic, `cli synth`\): `([^`]+)`", text, re.M)[1]
+    assert not Path(data).is_absolute() and Path(data).resolve() == made["av2"].resolve()
+    # the data's raw root is gone: the report says it cannot tell synthetic from real
+    monkeypatch.chdir(made["root"])
+    raw = made["root"] / "raw"
+    raw.rename(made["root"] / "raw_moved")
+    try:
+        report = write_report([made["runs"] / "lanegap_lidar"], made["root"] / "moved", reference="paper")
+    finally:
+        (made["root"] / "raw_moved").rename(raw)
+    text = report.path.read_text()
+    assert UNKNOWN_ORIGIN_NOTE in text and "## av2: `av2`, val split" in text
 
 
 def junctions_by_degree(graph: LaneGraph) -> int:
@@ -231,7 +377,7 @@ def junctions_by_degree(graph: LaneGraph) -> int:
 def test_junction_table_agrees_with_cli_score(made, tmp_path):
     av2 = made["av2"]
     gt = graphs_from_table(read_graph_table(av2), av2)
-    header, rows = first_table(section(section(made["text"], "## av2:"), "### Scores by junction count"))
+    header, rows = first_table(section(section(made["text"], AV2), "### Scores by junction count"))
     assert header[:2] == ["GT junctions", "frames"]
     oracle_file = made["runs"] / "path_oracle" / "predictions.parquet"
     predicted = graphs_from_table(read_graph_table(oracle_file), oracle_file)

@@ -518,18 +518,26 @@ def report(
 def viz(
     pred: Path = typer.Option(..., help="Predictions: a graph-table Parquet file (RUN/predictions.parquet)"),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset (or a graph-table file)"),
-    frame: str = typer.Option(None, help="Frame id; default: the predicted frame of the lowest TOPO F1"),
+    frame: str = typer.Option(
+        None, show_default="the predicted frame of the lowest directed TOPO F1", help="Frame id"
+    ),
     camera: bool = typer.Option(False, help="Add the front camera image with both graphs on the ground"),
     out: Path = typer.Option(..., help="PNG file to write"),
 ) -> None:
-    """One frame: ground truth and prediction side by side in BEV, matched and unmatched vertices coloured."""
+    """One frame: ground truth and prediction side by side in BEV, matched and unmatched vertices coloured.
+
+    \b
+    Examples:
+      cli viz --pred runs/lanegap/predictions.parquet --gt prepared/av2 --out worst.png
+      cli viz --pred runs/lanegap/predictions.parquet --gt prepared/av2 --frame FRAME_ID --camera --out f.png
+    """
     from benchmark.figures import viz as run_viz
 
     with reported_errors():
         result = run_viz(pred, gt, frame, out, camera)
     directed = result["scores"]["directed"]
     typer.echo(
-        f"{out}: frame {result['frame_id']}, directed TOPO F1 {directed['topo']['f1']:.3f}, "
+        f"wrote {out}: frame {result['frame_id']}, directed TOPO F1 {directed['topo']['f1']:.3f}, "
         f"Junction TOPO F1 {directed['junction_topo']['f1']:.3f}"
     )
 

@@ -303,30 +303,45 @@ def train(
 @app.command("eval")
 def eval_(
     run: Path = typer.Option(..., help="Run folder written by cli train"),
-    data: Path = typer.Option(None, help="Prepared dataset folder; default: the one the run trained on"),
-    split: str = typer.Option(None, help="Split to predict; default: the config's val split"),
-    device: str = typer.Option(None, help="cpu or cuda; default: cuda when available"),
+    data: Path = typer.Option(
+        None, show_default="the one the run trained on", help="Prepared dataset folder"
+    ),
+    split: str = typer.Option(None, show_default="the config's val split", help="Split to predict"),
+    device: Literal["cpu", "cuda"] = typer.Option(
+        None, show_default="cuda when available", help="Device to predict on"
+    ),
     floor: bool = typer.Option(
         True, help="Also score the sensor-blind floor (other log's sensors, constant prior) and the margin"
     ),
     bootstrap: int = typer.Option(
         1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
     ),
+    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Predict a split, turn the outputs into lane graphs (the model's post-processing), write
     predictions.parquet, frame_counts.parquet and metrics.json into the run folder; a dataset prepared
-    with other target parameters than the run's is refused (stale data)."""
-    from rich.console import Console
+    with other target parameters than the run's is refused (stale data).
+
+    \b
+    Examples:
+      cli eval --run runs/lanegap --split val
+      cli eval --run runs/lanegap --data prepared/other --device cpu --no-floor --json
+    """
+    import torch
     from rich.table import Table
 
     from baselines.evaluate import evaluate
 
     with reported_errors():
+        if device == "cuda" and not torch.cuda.is_available():
+            raise ValueError(f"--device cuda: CUDA is not available to torch {torch.__version__} here")
+        if not run.is_dir():
+            raise ValueError(f"--run {run}: no such folder")
+        if not (run / "config.json").is_file():
+            raise ValueError(f"--run {run}: no config.json (expected a run folder written by cli train)")
         metrics = evaluate(run, data, split, device, floor=floor, bootstrap=bootstrap)
     blind, drawn = metrics.get("floor"), metrics.get("bootstrap")
-    table = Table(title=f"{run} on {metrics['split']} ({metrics['frames']} frames)")
-    table.add_column("")
-    table.add_column("model")
+    table = Table("metric", "model")
     if drawn:
         table.add_column("95 % interval")
     for title in ("other log's sensors", "constant prior", "floor", "margin") if blind else ():
@@ -349,12 +364,16 @@ def eval_(
     for name in ("model", "modeling", "params", "gflops", "fps_net", "fps", "postprocess_ms", "device"):
         value = metrics[name]
         table.add_row(name, f"{value:.2f}" if isinstance(value, float) else str(value))
-    Console().print(table)
+    notes = []
     if blind and blind["constant_prior"]:
         prior = blind["constant_prior"]
-        typer.echo(f"constant prior: the ground truth of {prior['frame_id']} ({prior['split']} split)")
-    for name, reason in (blind or {}).get("absent", {}).items():
-        typer.echo(f"floor without {name}: {reason}")
+        notes.append(f"constant prior: the ground truth of {prior['frame_id']} ({prior['split']} split)")
+    notes += [f"floor without {name}: {reason}" for name, reason in (blind or {}).get("absent", {}).items()]
+    heading = f"{run} on {metrics['split']} of {metrics['data']}: {metrics['frames']} frames"
+    names = ("predictions.parquet", "frame_counts.parquet", "metrics.json")
+    finish(
+        metrics, [(heading, table)], [run / name for name in names if (run / name).is_file()], as_json, notes
+    )
 
 
 def score_table(result: dict):

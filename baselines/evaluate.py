@@ -46,6 +46,7 @@ from benchmark.score import (
 )
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
+from pipeline.progress import tracked
 
 
 def load_model(run_dir: Path, device: torch.device) -> tuple[Built, Config]:
@@ -120,7 +121,7 @@ def evaluate(
     rows, predictions = [], {}
     net_seconds = total_seconds = 0.0
     gflops = 0.0
-    for index, batch in enumerate(loader):
+    for index, batch in enumerate(tracked(loader, f"predict {split}", len(dataset))):
         sensors = batch.sensors.to(device_)
         if index == 0:
             gflops = count_gflops(model, sensors)

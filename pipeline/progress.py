@@ -1,13 +1,14 @@
 """Progress of long work: a rich bar on stderr while it runs, on a terminal only (logs stay clean).
 
-`with track("score frames", n) as advance:` ... `advance()` once per item. One bar at a time: work
-started inside another's (`cli eval`'s floor search scores each candidate with `score_pairs`, which
-tracks its frames) shows nothing, and the outer bar counts.
+`with track("score frames", n) as advance:` ... `advance()` once per item, or `for item in
+tracked(items, "predict frames", n)`. One bar at a time: work started inside another's (`cli eval`'s
+floor search scores each candidate with `score_pairs`, which tracks its frames) shows nothing, and the
+outer bar counts.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 
 from rich.console import Console
@@ -36,3 +37,11 @@ def track(description: str, total: int) -> Iterator[Callable[..., None]]:
             yield lambda n=1: bar.advance(task, n)
     finally:
         _shown.pop()
+
+
+def tracked(items: Iterable, description: str, total: int) -> Iterator:
+    """The items, one step of a `track` bar each."""
+    with track(description, total) as advance:
+        for item in items:
+            yield item
+            advance()

@@ -82,7 +82,7 @@ def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[s
             console.print(Text(line), soft_wrap=True)
 
 
-@app.command()
+@app.command(short_help="Write a synthetic raw dataset in the AV2 and nuScenes formats")
 def synth(
     out: Path = typer.Option(..., help="Folder to write OUT/av2/sensor/... and OUT/nuscenes/... into"),
     logs: int = typer.Option(
@@ -136,7 +136,7 @@ def missing_ray():
         raise typer.Exit(1) from error
 
 
-@app.command()
+@app.command(short_help="Raw AV2 / nuScenes maps -> Parquet training targets")
 def prepare(
     dataset: Literal["av2", "nuscenes"] = typer.Option(..., help="The raw dataset's format"),
     root: Path = typer.Option(..., help="AV2: the folder holding train/, val/, ... ; nuScenes: the dataroot"),
@@ -218,7 +218,7 @@ def prepare(
     finish(summary, [(f"prepared {dataset} from {root}", table)], wrote, as_json)
 
 
-@app.command()
+@app.command(short_help="Train a baseline: LaneGAP, MapTR, STSU or HDMapNet")
 def train(
     data: Path = typer.Option(
         None, show_default="the run's, on --resume", help="Prepared dataset (cli prepare --out)"
@@ -300,7 +300,7 @@ def train(
     finish(summary, [(heading, table)], wrote, as_json)
 
 
-@app.command("eval")
+@app.command("eval", short_help="Predict a split with a trained run and score it")
 def eval_(
     run: Path = typer.Option(..., help="Run folder written by cli train"),
     data: Path = typer.Option(
@@ -396,7 +396,7 @@ def score_table(result: dict):
     return table, notes
 
 
-@app.command()
+@app.command(short_help="Score predicted lane graphs: TOPO, Junction TOPO, mIoU")
 def score(
     pred: Path = typer.Option(
         ...,
@@ -456,7 +456,7 @@ def score(
     finish(result, [(heading, table)], [out] if out else [], as_json, notes)
 
 
-@app.command()
+@app.command(short_help="The ground truth through a representation and back")
 def roundtrip(
     data: Path = typer.Option(..., help="Prepared dataset (cli prepare --out)"),
     via: Literal["path", "piece", "pixel"] = typer.Option(
@@ -490,50 +490,70 @@ def roundtrip(
     finish(result, [(heading, table)], [out] if out else [], as_json, notes)
 
 
-@app.command()
+@app.command(short_help="Tables and pictures comparing finished runs")
 def report(
     runs: list[Path] = typer.Option(
-        ..., "--runs", help="A run folder, or a folder of run folders (repeatable: --runs A --runs B)"
+        ...,
+        "--runs",
+        metavar="RUN",
+        help="A run folder, or a folder of run folders (repeatable: --runs A --runs B)",
     ),
-    roundtrip: list[Path] = typer.Option([], "--roundtrip", help="A `cli roundtrip` JSON (repeatable)"),
+    roundtrip: list[Path] = typer.Option(
+        [],
+        "--roundtrip",
+        metavar="JSON",
+        show_default="none",
+        help="A `cli roundtrip --out` file (repeatable)",
+    ),
     out: Path = typer.Option(..., help="Folder for report.md and its PNGs"),
-    workers: int = typer.Option(1, help="Worker processes of the scores by junction count (0: one per core)"),
-    reference: str = typer.Option(
+    workers: int = typer.Option(
+        1, min=0, help="Worker processes of the scores by junction count (0: one per core)"
+    ),
+    reference: Literal["paper"] = typer.Option(
         None, show_default="none", help="paper: place the paper's published tables beside the measured ones"
     ),
     bootstrap: int = typer.Option(
         1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
     ),
+    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """The comparison tables and pictures of finished runs (from `cli eval` and `cli roundtrip`) as
-    OUT/report.md; prints the main tables (with --reference, the paper's rows beside them)."""
-    from rich.console import Console
+    OUT/report.md; prints the main tables (with --reference, the paper's rows beside them).
+
+    \b
+    Examples:
+      cli report --runs runs --out report
+      cli report --runs runs/lanegap --runs runs/maptr --roundtrip rt_path.json --reference paper --out report
+    """
     from rich.table import Table
 
     from benchmark.report import main_table, write_report
 
     with reported_errors():
         result = write_report(runs, out, roundtrip, workers, reference=reference, draws=bootstrap)
-    console = Console()
 
-    def print_table(title: str, header: list[str], rows: list[list[str]]) -> None:
-        keep = [i for i, name in enumerate(header) if i < 2 or name.endswith("F1") or name.startswith("FPS")]
-        table = Table(title=title.replace("`", ""))
-        for i in keep:
-            table.add_column(header[i])
-        for row in rows:  # markdown bold -> rich bold; no markdown code quotes
-            cells = [row[i].replace("`", "") for i in keep]
-            table.add_row(*(f"[bold]{c[2:-2]}[/bold]" if c.startswith("**") else c for c in cells))
-        console.print(table)
+    def plain(cell: str) -> str:  # markdown bold and code quotes off
+        return cell.replace("`", "").removeprefix("**").removesuffix("**")
 
+    shown, tables = [], []
     for block, references in zip(result.blocks, result.references):
-        print_table(block.title, *main_table(block))
-        for title, header, rows in references:
-            print_table(title, header, rows)
-    console.print(f"report: {result.path} ({len(result.pictures)} pictures)")
+        for title, header, rows in [(block.title, *main_table(block)), *references]:
+            keep = [
+                i for i, name in enumerate(header) if i < 2 or name.endswith("F1") or name.startswith("FPS")
+            ]
+            table = Table(*(header[i] for i in keep))
+            for row in rows:
+                table.add_row(*(f"[bold]{plain(row[i])}[/bold]" if row[i].startswith("**") else plain(row[i])
+                                for i in keep))  # fmt: skip
+            shown.append((plain(title), table))
+            tables.append(
+                {"title": plain(title), "header": header, "rows": [list(map(plain, r)) for r in rows]}
+            )
+    summary = {"report": str(result.path), "pictures": [str(p) for p in result.pictures], "tables": tables}
+    finish(summary, shown, [result.path], as_json, [f"{len(result.pictures)} pictures beside it"])
 
 
-@app.command()
+@app.command(short_help="One frame: ground truth beside prediction, as a PNG")
 def viz(
     pred: Path = typer.Option(..., help="Predictions: a graph-table Parquet file (RUN/predictions.parquet)"),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset (or a graph-table file)"),

@@ -203,7 +203,7 @@ def use_dataset_range(config: Config, data_dir: Path, master: bool) -> None:
     (new_x0, new_x1), (new_y0, new_y1) = crop
     bev_w, bev_h = max(1, round((new_x1 - new_x0) / cell_w)), max(1, round((new_y1 - new_y0) / cell_h))
     if master:
-        Console().print(f"BEV grid from the dataset: x {crop[0]}, y {crop[1]} m in {bev_h} x {bev_w} cells "
+        console.print(f"BEV grid from the dataset: x {crop[0]}, y {crop[1]} m in {bev_h} x {bev_w} cells "
                         f"(the preset had x {encoder.x_range}, y {encoder.y_range} in {encoder.bev_h} x "
                         f"{encoder.bev_w})")  # fmt: skip
     encoder.x_range, encoder.y_range, encoder.bev_w, encoder.bev_h = crop[0], crop[1], bev_w, bev_h

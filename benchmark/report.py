@@ -684,6 +684,21 @@ def reference_section(table: ReferenceTable, rows: list[dict], dataset: str | No
     return [heading, "", markdown_table(*reference_table(table, rows)), ""]
 
 
+def console_reference(
+    table: ReferenceTable, rows: list[dict], dataset: str
+) -> tuple[str, list[str], list[list[str]]]:
+    """(title, header, rows) of a reference table for a terminal: a label all rows share goes into the
+    title instead of each row."""
+    header, body = reference_table(table, rows)
+    labels = {row[0] for row in body}
+    title = f"Reference: {table.describe(dataset)}"
+    if len(labels) == 1:
+        label = labels.pop().replace(f"paper `{table.label}`", "paper")
+        title = f"Reference ({label}): {table.describe(dataset)}"
+        header, body = header[1:], [row[1:] for row in body]
+    return title, header, body
+
+
 def main_references(block: Block, refs: dict[str, ReferenceTable]) -> list[tuple[ReferenceTable, list[dict]]]:
     """The paper's tables that match a block's main table: Tab. 1 at its 30 x 60 m range on the
     dataset's own split, the 50 x 100 m table, the geographic split's table; only rows of its dataset."""
@@ -860,8 +875,7 @@ def write_report(
                 md += [f"No table of the paper matches this block ({where}).", ""]
         for table, rows in beside:
             md += reference_section(table, rows, block.dataset)
-            shown_references[-1].append((f"Reference: {table.describe(block.dataset)}",
-                                         *reference_table(table, rows)))  # fmt: skip
+            shown_references[-1].append(console_reference(table, rows, block.dataset))
             placed.add(table.label)
         md += [FLOOR_NOTE, ""]
         md += [f"- {note}" for note in floor_notes(block)] + [""]

@@ -320,8 +320,9 @@ def test_a_lead_inside_the_noise_is_level_and_cli_report_prints_the_reference(ma
     args = ["report", "--runs", str(runs), "--out", str(tmp_path / "r"), "--reference", "paper"]
     result = CliRunner().invoke(app, args, env={"COLUMNS": "250"})
     assert result.exit_code == 0, result.output
-    assert "Reference: the paper's Tab. 1" in result.output and "wrote " in result.output
-    assert "paper tab:modeling, 24 epochs, FPS on one RTX 3090 │ LaneGAP  │ 61.6" in result.output
+    assert "Reference (paper, 24 epochs, FPS on one RTX 3090): the paper's Tab. 1" in result.output
+    assert re.search(r"│ LaneGAP\s+│ path-wise\s+│ 61.6\s+│ 56.5\s+│", result.output)
+    assert "wrote " in result.output
     summary = (tmp_path / "r" / "report.md").read_text().split("\n\n")[1]
     assert "oracle_a is level with oracle_b on directed TOPO F1" in summary and "leads" not in summary
     assert "points, holds 0)" in summary

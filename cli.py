@@ -74,12 +74,13 @@ def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[s
     from rich.text import Text
 
     console = Console()
+    one_line = not console.is_terminal  # a log keeps each line whole; a terminal wraps it between words
     for heading, table in tables:
-        console.print(Text(heading, style="bold"), soft_wrap=True)  # a table's title wraps at its width
+        console.print(Text(heading, style="bold"), soft_wrap=one_line)  # a table title wraps at its width
         console.print(table)
     for line in [*notes, written]:
         if line:
-            console.print(Text(line), soft_wrap=True)
+            console.print(Text(line), soft_wrap=one_line)
 
 
 @app.command(short_help="Write a synthetic raw dataset in the AV2 and nuScenes formats")
@@ -119,7 +120,8 @@ def synth(
     with reported_errors():
         summary = write_synth(out, logs=logs, frames_per_log=frames_per_log, seed=seed, sensors=sensors,
                               frame_period=frame_period, worlds=worlds, val_worlds=val_worlds)  # fmt: skip
-    heading = f"synth: {len(summary['worlds'])} worlds, seed {summary['seed']}"
+    worlds = ", ".join(f"{world['index']} {world['nuscenes_map']}" for world in summary["worlds"])
+    heading = f"synth, seed {summary['seed']}: worlds {worlds}"
     wrote = [out / summary["av2_root"], out / summary["nuscenes_root"], out / "synth.json"]
     finish(summary, [(heading, summary_table(summary))], wrote, as_json)
 

@@ -157,8 +157,9 @@ def summary_table(summary: dict) -> Table:
     """The logs of a synth summary: split, world, ids, route and frames (`cli synth` prints it)."""
     table = Table()
     for column in ("split", "world", "AV2 log id", "nuScenes scene", "route", "frames"):
-        table.add_column(column, overflow="fold")
+        table.add_column(column, overflow="fold")  # a narrow terminal folds the long ids
     for log in summary["logs"]:
-        world = f"{log['world']} {log['nuscenes_map']}"
-        table.add_row(log["split"], world, log["log_id"], log["scene"], log["route"], str(log["frames"]))
+        table.add_row(
+            log["split"], str(log["world"]), log["log_id"], log["scene"], log["route"], str(log["frames"])
+        )
     return table

@@ -3,18 +3,24 @@ when ../shared/paper is present, and read back from the reference tables the rep
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
 import pytest
 
 from benchmark.reference import REFERENCE_FILE, SCORE_KEYS, load_reference
-from benchmark.report import reference_table
+from benchmark.report import Block, is_synthetic, main_references, reference_table
 
 LATEX = Path(__file__).resolve().parents[1].parent / "shared" / "paper" / "lanegap.tex"
 STAT_INDEX = {"P": 0, "R": 1, "F1": 2}
-COLUMN_KEYS = {f"{'dir' if mode == 'directed' else 'undir'} {'J-TOPO' if metric == 'junction_topo' else 'TOPO'}":
-               key for (mode, metric), key in SCORE_KEYS.items()}  # fmt: skip
+MODE_NAMES, METRIC_NAMES = (
+    {"directed": "dir", "undirected": "undir"},
+    {"junction_topo": "J-TOPO", "topo": "TOPO"},
+)
+COLUMN_KEYS = {
+    f"{MODE_NAMES[mode]} {METRIC_NAMES[metric]}": key for (mode, metric), key in SCORE_KEYS.items()
+}
 EXTRAS = {"Params (M)": "params_m", "FPS_net": "fps_net", "FPS": "fps", "mIoU": "miou"}
 
 
@@ -91,7 +97,9 @@ def latex_rows(tex: str, label: str) -> list[list[str]]:
     rows = []
     for line in body.split(r"\\"):
         cells = [re.sub(r"\\cellcolor\{[^}]*\}", "", cell) for cell in line.split("&")]
-        cells = [re.sub(r"\\(?:textbf|multirow\{[^}]*\}\{[^}]*\})\{([^}]*)\}", r"\1", c).strip() for c in cells]
+        cells = [
+            re.sub(r"\\(?:textbf|multirow\{[^}]*\}\{[^}]*\})\{([^}]*)\}", r"\1", c).strip() for c in cells
+        ]
         if any(cells):
             rows.append(cells)
     return rows
@@ -144,3 +152,51 @@ def test_the_data_file_names_its_source():
     if LATEX.is_file():
         source = LATEX.read_text()
         assert all(rf"\label{{{label}}}" in source for label in labels)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Which tables a dataset block gets, and how its data is named
+
+
+def test_the_range_and_split_tables_follow_the_manifest():
+    refs = load_reference()
+
+    def placed(dataset: str, parameters: dict) -> list[tuple[str, set]]:
+        block = Block(dataset, None, "val", [], manifest={"parameters": parameters})
+        return [
+            (table.label, {table.dataset(row) for row in rows})
+            for table, rows in main_references(block, refs)
+        ]
+
+    geographic = {"train": "train.txt", "val": "val.txt"}
+    assert placed("nuscenes", {"bev_range": "30x60"}) == [("tab:modeling", {"nuscenes"})]
+    assert placed("av2", {"bev_range": "30x60"}) == [("tab:modeling", {"av2"})]
+    assert placed("nuscenes", {"bev_range": "50x100"}) == [("tab:perception_range", {"nuscenes"})]
+    assert placed("nuscenes", {"bev_range": "30x60", "split_files": geographic}) == [
+        ("tab:newsplit", {"nuscenes"})
+    ]
+    assert placed("nuscenes", {"bev_range": "50x100", "split_files": geographic}) == [
+        ("tab:perception_range", {"nuscenes"}), ("tab:newsplit", {"nuscenes"})
+    ]  # fmt: skip
+    # the paper's range and split tables are nuScenes only; another range or dataset has no table
+    assert placed("av2", {"bev_range": "50x100"}) == []
+    assert placed("nuscenes", {"bev_range": "20x40"}) == []
+    assert placed("unknown", {"bev_range": "30x60"}) == []
+
+
+def test_synthetic_data_is_told_by_the_synth_marker_above_the_raw_root(tmp_path):
+    raw = tmp_path / "raw"
+    (raw / "av2" / "sensor").mkdir(parents=True)
+    (raw / "nuscenes").mkdir()
+    (raw / "synth.json").write_text(json.dumps({"av2_root": "av2/sensor", "nuscenes_root": "nuscenes"}))
+    assert is_synthetic({"root": str(raw / "av2" / "sensor")}) is True
+    assert is_synthetic({"root": str(raw / "nuscenes")}) is True
+    real = tmp_path / "real" / "sensor"
+    real.mkdir(parents=True)
+    assert is_synthetic({"root": str(real)}) is False
+    (tmp_path / "other").mkdir()  # a marker that names other roots says nothing about this one
+    (tmp_path / "other" / "synth.json").write_text(json.dumps({"av2_root": "x", "nuscenes_root": "y"}))
+    (tmp_path / "other" / "data").mkdir()
+    assert is_synthetic({"root": str(tmp_path / "other" / "data")}) is False
+    assert is_synthetic({"root": str(tmp_path / "gone")}) is None
+    assert is_synthetic({}) is None

@@ -61,6 +61,13 @@ def positive(value: float | None) -> float | None:
     return value
 
 
+def bezier_points_check(value: int | None) -> int | None:
+    """Callback of train --bezier-points: one control point would be a curve of degree 0, a point."""
+    if value is not None and (value < 0 or value == 1):
+        raise typer.BadParameter(f"{value} is neither 0 (polyline) nor in the range x>=2.")
+    return value
+
+
 def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[str] = ()) -> None:
     """A command's end: with --json its result as one JSON line on stdout (and what it wrote on stderr);
     else its (heading, table) pairs, notes and the paths it wrote."""
@@ -241,7 +248,10 @@ def train(
         None, show_default=PRESET_DEFAULTS["path_points"], help="Points per path N (query models)"
     ),
     bezier_points: int = typer.Option(
-        None, min=0, show_default="0", help="Bezier head with K control points (paper: 5); 0: polyline"
+        None,
+        callback=bezier_points_check,
+        show_default="0",
+        help="Bezier head with K control points (paper: 5); 0: polyline (0 or x>=2)",
     ),
     aux_seg: bool = typer.Option(
         None, "--aux-seg/--no-aux-seg", show_default="aux-seg", help="Auxiliary BEV segmentation loss"

@@ -173,6 +173,7 @@ def test_train_refuses_bad_options_in_one_line(tiny, tmp_path):
         (["--set", "optimiser.lr=1"], ["--set optimiser.lr=1", "encoder, decoder, data, train"]),
         (["--epochs", 0], ["'--epochs'", "greater than or equal to 1"]),
         (["--batch-size", 0], ["'--batch-size'", "greater than or equal to 1"]),
+        (["--bezier-points", 1], ["'--bezier-points'", "0 (polyline)", "x>=2"]),
         (["--model", "detr"], ["'--model'", "'lanegap'"]),
         (["--preset", "huge"], ["'--preset'", "'paper', 'tiny'"]),
         (["--modality", "radar"], ["'--modality'", "'camera', 'lidar', 'fusion'"]),

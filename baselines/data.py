@@ -21,6 +21,7 @@ import torch
 
 from baselines.config import Config
 from baselines.encoder import SensorBatch
+from pipeline.camera import scaled_intrinsics
 from pipeline.io import decode_raster, read_table
 
 
@@ -68,14 +69,6 @@ def read_image(path: Path, scale: float, width: int, height: int) -> tuple[np.nd
     if (new_w, new_h) != (image.shape[1], image.shape[0]):
         image = cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_AREA)
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB), new_w / width, new_h / height
-
-
-def scaled_intrinsics(intrinsics: np.ndarray, scale_x: float, scale_y: float) -> np.ndarray:
-    """Intrinsics of a resized image; pixel centres (OpenCV convention) map as (u + 0.5) * s - 0.5."""
-    k = intrinsics.copy()
-    k[0, 0], k[0, 1], k[0, 2] = k[0, 0] * scale_x, k[0, 1] * scale_x, (k[0, 2] + 0.5) * scale_x - 0.5
-    k[1, 1], k[1, 2] = k[1, 1] * scale_y, (k[1, 2] + 0.5) * scale_y - 0.5
-    return k
 
 
 def read_lidar(path: Path) -> np.ndarray:

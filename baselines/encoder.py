@@ -23,6 +23,7 @@ from baselines.attention import DeformableAttention
 from baselines.blocks import FeedForward
 from baselines.config import EncoderConfig
 from baselines.resnet import build_resnet
+from pipeline.camera import project_points
 
 IMAGENET_MEAN = (123.675, 116.28, 103.53)  # torchvision's, RGB 0..255
 IMAGENET_STD = (58.395, 57.12, 57.375)
@@ -88,33 +89,6 @@ def above_ground_to_bev(points: torch.Tensor, ground_z: torch.Tensor) -> torch.T
     lifted = points.repeat(len(ground_z), 1, 1)
     lifted[..., 2] += ground_z[:, None]
     return lifted
-
-
-def project_points(
-    points: torch.Tensor, intrinsics: torch.Tensor, sensor_to_ego: torch.Tensor, image_sizes: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Project BEV-frame points, (P, 3) shared by the batch or (B, P, 3), into every camera.
-
-    Returns pixels (B, Ncam, P, 2) as (u, v) in the OpenCV convention (pixel (0, 0)'s centre at 0, 0)
-    and visible (B, Ncam, P): in front of the camera and inside its image.
-    """
-    ego_to_camera = torch.linalg.inv(sensor_to_ego.float())
-    points = points.expand(sensor_to_ego.shape[0], -1, -1)
-    homogeneous = torch.cat([points, torch.ones_like(points[..., :1])], -1)  # (B, P, 4)
-    in_camera = torch.einsum("bnij,bpj->bnpi", ego_to_camera[..., :3, :], homogeneous)
-    depth = in_camera[..., 2]
-    on_image = torch.einsum("bnij,bnpj->bnpi", intrinsics.float(), in_camera)
-    pixels = on_image[..., :2] / depth.clamp(min=1e-3).unsqueeze(-1)
-    height = image_sizes[..., 0:1].float()
-    width = image_sizes[..., 1:2].float()
-    visible = (
-        (depth > 0.1)
-        & (pixels[..., 0] >= -0.5)
-        & (pixels[..., 0] < width - 0.5)
-        & (pixels[..., 1] >= -0.5)
-        & (pixels[..., 1] < height - 0.5)
-    )
-    return pixels, visible
 
 
 class FPNNeck(nn.Module):

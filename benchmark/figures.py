@@ -187,14 +187,14 @@ def frame_view(
 
 def front_camera(data: Path, frame: dict) -> dict:
     """The frame's camera that looks most along +y (forward), its image, and a function that projects a
-    graph laid on the ground (frames.ground_z) into it with the encoder's own `project_points`."""
+    graph laid on the ground (frames.ground_z) into it with the encoder's own `project_points`
+    (pipeline/camera.py)."""
     import json
 
     import cv2
     import torch
 
-    from baselines.data import scaled_intrinsics
-    from baselines.encoder import project_points
+    from pipeline.camera import project_points, scaled_intrinsics
 
     if not frame["cameras"]:
         raise ValueError(f"{data / 'frames'}: frame {frame['frame_id']} has no cameras")

@@ -13,11 +13,12 @@ from baselines.attention import DeformableAttention, deformable_sample
 from baselines.blocks import bernstein_matrix
 from baselines.config import Config, apply_overrides, tiny
 from baselines.data import Targets
-from baselines.encoder import SensorBatch, bev_cell_centres, project_points
+from baselines.encoder import SensorBatch, bev_cell_centres
 from baselines.matcher import focal_cost, hungarian_match, ordered_point_cost
 from baselines.models.lanegap import LaneGAP, LaneGAPLoss, select_paths
 from baselines.query_decoder import MARGIN
 from baselines.resnet import build_resnet
+from pipeline.camera import project_points
 
 torch.set_num_threads(1)
 

@@ -21,9 +21,10 @@ import torch
 import torch.multiprocessing as mp
 
 from baselines.config import Config, tiny
-from baselines.data import PreparedDataset, collate, resample_polyline, scaled_intrinsics
+from baselines.data import PreparedDataset, collate, resample_polyline
 from baselines.train import lr_factor, train
 from pipeline import io
+from pipeline.camera import scaled_intrinsics
 from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
 from pipeline.raster import Grid, rasterize

@@ -1,7 +1,7 @@
 """The camera encoder's geometry end to end: a lane-paint point of the synthetic world, moved into a
-prepared frame's BEV frame by its pose and projected by the encoder's `project_points` through the
-frame's calibration (as `cli prepare` wrote it and `baselines.data` resized it), lands on the bright
-paint that synth drew in that camera's image; the lane centres between the lines land on asphalt.
+prepared frame's BEV frame by its pose and projected by the encoder's `project_points` (pipeline/camera.py)
+through the frame's calibration (as `cli prepare` wrote it and `baselines.data` resized it), lands on the
+bright paint that synth drew in that camera's image; the lane centres between the lines land on asphalt.
 The same holds for the tiny preset's own pillar height, lifted onto each frame's ground by the
 `ground_z` that `cli prepare` recorded (nuScenes' LIDAR_TOP frame is 1.84 m above the ground)."""
 
@@ -14,7 +14,8 @@ from test_synth import painted_lines
 
 from baselines.config import tiny
 from baselines.data import PreparedDataset
-from baselines.encoder import above_ground_to_bev, project_points
+from baselines.encoder import above_ground_to_bev
+from pipeline.camera import project_points
 from pipeline.io import read_table
 from pipeline.synth.world import build_world
 

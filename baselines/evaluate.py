@@ -36,16 +36,10 @@ from baselines.models import Built, build
 from baselines.train import CHECKPOINT, amp_settings, load_checkpoint
 from benchmark.bootstrap import DRAWS, FRAME_COUNTS, add_intervals, check_draws, write_frame_counts
 from benchmark.metrics import MetricParams
-from benchmark.score import (
-    TARGETS_KEY,
-    check_targets,
-    default_range,
-    graphs_from_table,
-    read_graph_table,
-    score_frames,
-)
+from benchmark.score import TARGETS_KEY, default_range, graphs_from_table, read_graph_table, score_frames
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
+from pipeline.manifest import check_targets
 from pipeline.progress import tracked
 
 

@@ -35,8 +35,8 @@ from torch.utils.data import DataLoader, DistributedSampler
 from baselines.config import Config
 from baselines.data import Batch, PreparedDataset, collate, dataset_range
 from baselines.models import build
-from benchmark.score import check_targets, dataset_targets
 from pipeline import io
+from pipeline.manifest import check_targets, dataset_targets
 
 console = Console(stderr=True)
 CHECKPOINT, PREVIOUS = "checkpoint.pt", "checkpoint.prev.pt"

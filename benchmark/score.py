@@ -28,11 +28,10 @@ from benchmark.bootstrap import add_intervals, check_draws
 from benchmark.metrics import METRIC_VERSION, MetricParams, Totals
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
+from pipeline.manifest import check_targets
 from pipeline.progress import track
 
 COLUMNS = ("frame_id", "x", "y", "src", "dst")
-# What defines a prepared dataset's targets: manifest.json "parameters" and its schema_version.
-TARGET_PARAMETERS = ("bev_range", "path_points", "piece_points", "max_paths", "resolution", "line_width")
 TARGETS_KEY = b"lanegraph_targets"  # Parquet metadata of predictions: the targets their model trained on
 
 
@@ -165,31 +164,6 @@ def score_frames(
                     totals.add(part)  # exact sums: the chunking does not change a digit
                     advance(part.frames)
     return {**totals.result(), "metric_version": METRIC_VERSION}, totals.frame_table()
-
-
-def dataset_targets(data: Path) -> dict:
-    """The target parameters of a prepared dataset (its manifest.json); {} for a graph-table file or a
-    folder without manifest."""
-    path = Path(data) / "manifest.json"
-    if not path.is_file():
-        return {}
-    manifest = json.loads(path.read_text())
-    parameters = manifest.get("parameters", {})
-    targets = {key: parameters[key] for key in TARGET_PARAMETERS if key in parameters}
-    if "schema_version" in manifest:
-        targets["schema_version"] = manifest["schema_version"]
-    return targets
-
-
-def check_targets(trained: dict, data: Path, what: str) -> None:
-    """Refuse a prepared dataset whose target parameters differ from those `what` was trained on."""
-    current = dataset_targets(data)
-    for key, value in trained.items():
-        if key in current and current[key] != value:
-            raise ValueError(
-                f"{Path(data) / 'manifest.json'}: stale data: prepared with {key}={current[key]!r}, but "
-                f"{what} was trained on {key}={value!r}; use a dataset prepared with the same options"
-            )
 
 
 def default_range(gt_path: Path) -> str:

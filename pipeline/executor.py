@@ -1,9 +1,10 @@
 """`cli prepare --executor ray`: one Ray task per log, on a local instance or on a running cluster.
 
-Each task runs `prepare_log` and writes its log's shards itself, exactly as the local executor does, so
-the shards are the same bytes; `root` and `out` must be on a filesystem that every node sees, and every
-node needs this package installed (the same as the driver's). Results come back in job order, so
-errors.jsonl and the manifest are the same as a local run's. Ray enables token authentication for the
+Each task runs the work it is given for one log (`cli prepare`: `prepare_log`), which writes the log's
+shards itself, exactly as the local executor does, so the shards are the same bytes; `root` and `out`
+must be on a filesystem that every node sees, and every node needs this package installed (the same as
+the driver's). Results come back in job order, so errors.jsonl and the manifest are the same as a local
+run's. Ray enables token authentication for the
 clusters it starts; a driver joining one by HOST:PORT (not "auto") sends the token only with
 RAY_AUTH_MODE=token set (Ray's rule: an explicit address never turns it on by itself).
 
@@ -19,7 +20,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from pathlib import Path
 
 from pipeline.errors import DataError
 
@@ -38,38 +38,28 @@ def import_ray():
     return ray
 
 
-def prepare_log_task(job, out: Path, options, frame_stride: int, on_error: str):
-    """prepare_log in a Ray worker: (LogResult, None), or (None, the DataError's fields): a DataError
-    does not unpickle whole (its constructor takes three arguments), so it travels as its parts."""
-    from pipeline.prepare import prepare_log
-
+def run_task(work: Callable, job):
+    """work(job) in a Ray worker: (its result, None), or (None, the DataError's fields): a DataError does
+    not unpickle whole (its constructor takes three arguments), so it travels as its parts."""
     try:
-        return prepare_log(job, out, options, frame_stride, on_error), None
+        return work(job), None
     except DataError as error:
         return None, (error.source, error.record, error.problem)
 
 
-def run_ray(
-    jobs: list,
-    out: Path,
-    options,
-    frame_stride: int,
-    on_error: str,
-    workers: int,
-    address: str | None,
-    on_done: Callable,
-) -> list:
-    """LogResults of every job, in job order; on_done(job) as each log finishes. address: None starts a
-    local instance with `workers` CPUs, "auto" or HOST:PORT joins a running cluster (`ray start --head`).
-    A Ray already initialised by the caller is used as it is and left running."""
+def run_ray(jobs: list, work: Callable, workers: int, address: str | None, on_done: Callable) -> list:
+    """work(job) of every job (a picklable callable that does one log and writes its shards), results in
+    job order; on_done(job) as each log finishes. address: None starts a local instance with `workers`
+    CPUs, "auto" or HOST:PORT joins a running cluster (`ray start --head`). A Ray already initialised by
+    the caller is used as it is and left running."""
     ray = import_ray()
     started = not ray.is_initialized()
     if started:  # "local": a new instance, even where a `ray start` cluster runs on this machine
         cpus = None if address else max(workers, 1)
         ray.init(address or "local", num_cpus=cpus, log_to_driver=False, logging_level=logging.WARNING)
     try:
-        task = ray.remote(num_cpus=1)(prepare_log_task)
-        refs = [task.remote(job, out, options, frame_stride, on_error) for job in jobs]
+        task = ray.remote(num_cpus=1)(run_task)
+        refs = [task.remote(work, job) for job in jobs]
         index = {ref: i for i, ref in enumerate(refs)}
         results = [None] * len(jobs)
         pending = list(refs)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import multiprocessing
 import resource
@@ -402,10 +403,10 @@ def prepare(
         if executor == "ray":
             from pipeline.executor import run_ray
 
-            results = run_ray(
-                todo, out, options, frame_stride, on_error, workers, address,
-                lambda job: progress.advance(task, job.n_frames),
-            )  # fmt: skip
+            work = functools.partial(
+                prepare_log, out=out, options=options, frame_stride=frame_stride, on_error=on_error
+            )
+            results = run_ray(todo, work, workers, address, lambda job: progress.advance(task, job.n_frames))
         elif workers <= 1:
             for job in todo:
                 results.append(

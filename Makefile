@@ -61,7 +61,7 @@ gpu-smoke: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmark/bench_prepare.py
 	$(PY) benchmark/bench_metrics.py
-	$(PY) benchmark/bench_loader.py
+	$(PY) baselines/bench_loader.py
 
 bench-train: $(STAMP)
 	$(PY) baselines/bench_train.py

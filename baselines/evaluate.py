@@ -21,7 +21,6 @@ import time
 from contextlib import nullcontext
 from pathlib import Path
 
-import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
@@ -36,9 +35,15 @@ from baselines.models import Built, build
 from baselines.train import CHECKPOINT, amp_settings, load_checkpoint
 from benchmark.bootstrap import DRAWS, FRAME_COUNTS, add_intervals, check_draws, write_frame_counts
 from benchmark.metrics import MetricParams
-from benchmark.score import TARGETS_KEY, default_range, graphs_from_table, read_graph_table, score_frames
+from benchmark.score import (
+    TARGETS_KEY,
+    default_range,
+    graph_row,
+    graphs_from_table,
+    read_graph_table,
+    score_frames,
+)
 from pipeline import io
-from pipeline.lane_graph import LaneGraph
 from pipeline.manifest import check_targets
 from pipeline.progress import tracked
 
@@ -68,16 +73,6 @@ def count_gflops(model: torch.nn.Module, sensors) -> float:
     with FlopCounterMode(display=False) as counter:
         model(sensors)
     return counter.get_total_flops() / 1e9
-
-
-def graph_row(frame_id: str, graph: LaneGraph) -> dict:
-    return {
-        "frame_id": frame_id,
-        "x": np.asarray(graph.x, np.float32).tolist(),
-        "y": np.asarray(graph.y, np.float32).tolist(),
-        "src": np.asarray(graph.src, np.int32).tolist(),
-        "dst": np.asarray(graph.dst, np.int32).tolist(),
-    }
 
 
 def evaluate(

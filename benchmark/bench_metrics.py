@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmark.metrics import MetricParams  # noqa: E402
 from benchmark.path2graph import path2graph  # noqa: E402
 from benchmark.roundtrip import polylines_by_frame  # noqa: E402
-from benchmark.score import graphs_from_table, score_pairs  # noqa: E402
+from benchmark.score import graph_row, graphs_from_table, score_pairs  # noqa: E402
 from pipeline.io import SCHEMAS, read_table  # noqa: E402
 from pipeline.lane_graph import LaneGraph  # noqa: E402
 
@@ -59,8 +59,6 @@ def cli_score_peak_mib(pairs: list[tuple[LaneGraph, LaneGraph]], folder: Path) -
     process; returns (its peak resident memory in MiB, the two tables' size on disk in MiB)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
-
-    from baselines.evaluate import graph_row
 
     files = []
     for name, side in (("pred", 0), ("gt", 1)):

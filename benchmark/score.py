@@ -128,6 +128,17 @@ def graphs_from_table(table: pa.Table, path: Path) -> dict[str, LaneGraph]:
     }
 
 
+def graph_row(frame_id: str, graph: LaneGraph) -> dict:
+    """The graph-table row of one frame's graph (graphs_from_table's inverse)."""
+    return {
+        "frame_id": frame_id,
+        "x": np.asarray(graph.x, np.float32).tolist(),
+        "y": np.asarray(graph.y, np.float32).tolist(),
+        "src": np.asarray(graph.src, np.int32).tolist(),
+        "dst": np.asarray(graph.dst, np.int32).tolist(),
+    }
+
+
 def _score_chunk(chunk: list[tuple[LaneGraph, LaneGraph]], params: MetricParams) -> Totals:
     totals = Totals(params)
     for pred, gt in chunk:

@@ -16,7 +16,7 @@ included). The files are read once beforehand, so the page cache holds them: dec
 not the disk. Beside it, the paper's forward rate (16.5 FPS on one RTX 3090) gives the cores that
 one GPU needs. A cProfile of the one-core run says where the time goes.
 
-    .venv/bin/python benchmark/bench_loader.py [--data DIR ...] [--frames 48] [--batch-size 4]
+    .venv/bin/python baselines/bench_loader.py [--data DIR ...] [--frames 48] [--batch-size 4]
 
 Without --data it writes and prepares the synthetic world (`cli synth`, `cli prepare`) in a temporary
 folder.

@@ -282,14 +282,15 @@ def train(
       cli train --model lanegap --data prepared/av2 --out runs/lanegap --preset tiny
       torchrun --nproc_per_node 8 -m cli train --model maptr --data prepared/av2 --out runs/maptr
     """
-    from baselines.config import Config, apply_overrides, resolve_config
+    from baselines.config import apply_overrides
+    from baselines.models import load_config, resolve_config
     from baselines.train import train as run_train
 
     with reported_errors():
         if resume:  # the run's own config; only --epochs and --set may change it (e.g. to extend it)
             if not (out / "config.json").is_file() or not (out / "run.json").is_file():
                 raise ValueError(f"--out {out}: no run to resume (config.json and run.json of cli train)")
-            config = Config.load(out / "config.json")
+            config = load_config(out / "config.json")
             apply_overrides(config, [f"train.epochs={epochs}"] if epochs else [], "--epochs")
             apply_overrides(config, set_)
             data = data or Path(json.loads((out / "run.json").read_text())["data"])

@@ -114,10 +114,10 @@ def measure(data: str, modality: str, workers: int, batch_size: int, profile: bo
     import torch
     from torch.utils.data import DataLoader
 
-    from baselines.config import paper
     from baselines.data import PreparedDataset, collate
+    from baselines.models import resolve_config
 
-    config = paper()
+    config = resolve_config("paper")
     config.encoder.modality = modality
     dataset = PreparedDataset(Path(data), SPLIT, config)
     for frame in dataset.frames:  # into the page cache: the disk is not measured

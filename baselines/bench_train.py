@@ -44,8 +44,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
-    from baselines.config import resolve_config
     from baselines.evaluate import evaluate
+    from baselines.models import resolve_config
     from baselines.train import train
 
     data = prepare_synthetic(args.out / f"data_w{args.worlds}_s{args.seed}", args.worlds, args.seed)

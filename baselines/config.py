@@ -1,4 +1,7 @@
-"""Configuration as plain dataclasses, with the `paper` and `tiny` presets.
+"""Configuration as plain dataclasses: the shared encoder, the data and the training, with the `paper`,
+`tiny` and `gpu` presets of them. A model's head config (the `decoder` section) and its size per preset
+live beside the model (baselines/models/); `baselines.models.resolve_config` puts a preset and a model
+together, `baselines.models.load_config` reads a saved one.
 
 Every field can be overridden from the command line with `--set section.field=value`
 (e.g. `--set train.lr=3e-4 --set encoder.kernel_size=3,3`); the resolved config is saved with the run.
@@ -78,31 +81,6 @@ def _stack(a: Any, b: Any, like: Any) -> Any:
 
 
 @dataclass
-class DecoderConfig:
-    """LaneGAP's MapTR-style path decoder and its loss (paper Eq. 3 and 4)."""
-
-    num_paths: int = 50  # instance queries
-    path_points: int = 30  # N points per path (10 / 20 / 30 / 40)
-    bezier_points: int = 0  # 0: polyline head; K > 0: Bezier head with K control points (paper: 5)
-    layers: int = 6
-    heads: int = 8
-    ffn_channels: int = 512
-    deform_points: int = 4  # samples per head (per anchor) in the deformable cross-attention
-    dropout: float = 0.1
-    aux_seg: bool = True  # auxiliary BEV segmentation (training only)
-    # 0: off; s: the decoder also reads the BEV features lifted to cells s times smaller, which a dense
-    # lane and direction loss on the prepared rasters trains (baselines/fine_bev.py; the tiny preset's)
-    fine_scale: float = 0.0
-    fine_weight: float = 1.0
-    cls_weight: float = 2.0
-    point_weight: float = 5.0
-    seg_weight: float = 1.0
-    focal_alpha: float = 0.25
-    focal_gamma: float = 2.0
-    score_threshold: float = 0.4  # paths kept at inference
-
-
-@dataclass
 class DataConfig:
     image_scale_nuscenes: float = 0.5  # image resize ratio of the paper
     image_scale_av2: float = 0.3
@@ -140,9 +118,9 @@ class TrainConfig:
 @dataclass
 class Config:
     preset: str = "paper"
-    model: str = "lanegap"  # a key of baselines.models.MODELS
+    model: str = ""  # a key of baselines.models.MODELS
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
-    decoder: Any = field(default_factory=DecoderConfig)  # the model's head config (its own dataclass)
+    decoder: Any = None  # the model's head config (its own dataclass, baselines.models.HEADS)
     data: DataConfig = field(default_factory=DataConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
@@ -153,11 +131,10 @@ class Config:
         path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
 
     @staticmethod
-    def from_dict(values: dict[str, Any]) -> Config:
-        config = Config()
-        if values.get("model", "lanegap") != "lanegap":
-            config.model = values["model"]
-            config.decoder = model_head(config.model, values.get("preset", "paper"))
+    def from_dict(values: dict[str, Any], decoder: Any) -> Config:
+        """`values` (a saved config) over the paper preset's sections and `decoder`, the head config of
+        the model that `values` names (baselines.models.load_config)."""
+        config = Config(decoder=decoder)
         for key, value in values.items():
             if isinstance(value, dict):
                 section = getattr(config, key)
@@ -167,13 +144,10 @@ class Config:
                 setattr(config, key, value)
         return config
 
-    @staticmethod
-    def load(path: Path) -> Config:
-        return Config.from_dict(json.loads(path.read_text()))
-
 
 def paper() -> Config:
-    """The paper's settings (Tab. 11/12): ResNet-50, 200 x 100 BEV, batch 32, 24 epochs."""
+    """The paper's settings (Tab. 11/12): ResNet-50, 200 x 100 BEV, batch 32, 24 epochs. The presets hold
+    no model: baselines.models.resolve_config adds one and its head config."""
     return Config(preset="paper")
 
 
@@ -200,20 +174,6 @@ def tiny() -> Config:
             pillar_subdivision=1,
             lidar_blocks=1,
         ),
-        # score_threshold 0.5: chosen on the synthetic training frames; a short schedule rarely scores a
-        # path above 0.7. point_weight 20 with a fine BEV level at 0.6 m (fine_scale 2.5): the best of the
-        # levers measured within the CPU budget (docs/EXPERIMENTS.md, 2026-12-03).
-        decoder=DecoderConfig(
-            num_paths=32,
-            path_points=20,
-            layers=3,
-            heads=4,
-            ffn_channels=128,
-            dropout=0.0,
-            point_weight=20.0,
-            fine_scale=2.5,
-            score_threshold=0.5,
-        ),
         data=DataConfig(
             # The synthetic images are already 1/4 (nuScenes) and 1/8 (AV2) of the real sizes: 200 x 113
             # and 256 x 194 pixels here (on real data set 0.125 for both); smaller AV2 images lose lanes
@@ -236,7 +196,7 @@ def tiny() -> Config:
 
 
 def gpu() -> Config:
-    """One CUDA GPU (`make gpu-check`): the paper's 0.3 m BEV cells and decoder sizes on the synthetic
+    """One CUDA GPU (`make gpu-check`): the paper's 0.3 m BEV cells (and decoder sizes) on the synthetic
     data's images (the tiny preset's scales and crop), a ResNet-18 camera branch (no pretrained weights
     can be had here), bf16 autocast, and one schedule for every model."""
     return Config(
@@ -254,22 +214,12 @@ def gpu() -> Config:
             kernel_size=(3, 3),
             max_views=2,
         ),
-        decoder=DecoderConfig(),
         data=dataclasses.replace(tiny().data, num_workers=0),
         train=TrainConfig(epochs=16, batch_size=8, lr=1e-3, backbone_lr_mult=1.0, warmup_iters=100),
     )
 
 
 PRESETS = {"paper": paper, "tiny": tiny, "gpu": gpu}
-
-
-def model_head(model: str, preset: str) -> Any:
-    """The head config of `model` for `preset` (the presets above hold LaneGAP's)."""
-    from baselines.models import HEADS  # the model modules import this one
-
-    if model not in HEADS:
-        raise ValueError(f"unknown model {model!r}: expected one of {', '.join(HEADS)}")
-    return HEADS[model](preset)
 
 
 def apply_overrides(config: Config, overrides: list[str], option: str = "--set") -> Config:
@@ -353,40 +303,3 @@ def _coerce(current: Any, value: Any, name: str) -> Any:
     if isinstance(current, int):
         return int(value)
     return value
-
-
-def resolve_config(
-    preset: str,
-    modality: str | None = None,
-    epochs: int | None = None,
-    batch_size: int | None = None,
-    path_points: int | None = None,
-    bezier_points: int | None = None,
-    aux_seg: bool | None = None,
-    backbone_weights: str | None = None,
-    overrides: list[str] | None = None,
-    model: str = "lanegap",
-) -> Config:
-    """A preset with the `cli train` flags (None: keep the preset's value), then `--set` overrides;
-    `model` picks the head config (`decoder`): a flag of another model's head is an error."""
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}")
-    config = PRESETS[preset]()
-    if model != config.model:
-        config.model, config.decoder = model, model_head(model, preset)
-    flags = {
-        "--modality": ("encoder.modality", modality),
-        "--epochs": ("train.epochs", epochs),
-        "--batch-size": ("train.batch_size", batch_size),
-        "--path-points": ("decoder.path_points", path_points),
-        "--bezier-points": ("decoder.bezier_points", bezier_points),
-        "--aux-seg": ("decoder.aux_seg", aux_seg),
-        "--pretrained": ("encoder.backbone_weights", backbone_weights),
-    }
-    for flag, (name, value) in flags.items():
-        if value is not None:
-            set_field(config, f"{name}={value}", flag)
-    apply_overrides(config, overrides or [])
-    if config.encoder.modality not in ("camera", "lidar", "fusion"):
-        raise ValueError(f"modality must be camera, lidar or fusion, not {config.encoder.modality!r}")
-    return config

@@ -27,9 +27,9 @@ from rich.console import Console
 from rich.table import Table
 from torch import nn
 
-from baselines.config import Config, resolve_config
+from baselines.config import Config
 from baselines.data import PreparedDataset, collate
-from baselines.models import build
+from baselines.models import build, resolve_config
 from baselines.train import build_optimizer, lr_factor
 from benchmark.metrics import MetricParams
 from benchmark.score import default_range, graphs_from_table, read_graph_table, score_pairs

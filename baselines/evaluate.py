@@ -31,7 +31,7 @@ from torch.utils.flop_counter import FlopCounterMode
 from baselines.config import Config
 from baselines.data import PreparedDataset, collate
 from baselines.floor import blind_floor, floor_margins
-from baselines.models import Built, build
+from baselines.models import Built, build, load_config
 from baselines.train import CHECKPOINT, amp_settings, load_checkpoint
 from benchmark.bootstrap import DRAWS, FRAME_COUNTS, add_intervals, check_draws, write_frame_counts
 from benchmark.metrics import MetricParams
@@ -50,7 +50,7 @@ from pipeline.progress import tracked
 
 def load_model(run_dir: Path, device: torch.device) -> tuple[Built, Config]:
     """The run's model (in eval mode on `device`) with its post-processing, and the run's config."""
-    config = Config.load(run_dir / "config.json")
+    config = load_config(run_dir / "config.json")
     built = build(config)
     path = run_dir / CHECKPOINT
     checkpoint = load_checkpoint(path)  # weights_only, checksum: a file from elsewhere cannot run code

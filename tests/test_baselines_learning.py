@@ -21,9 +21,9 @@ import time
 import pytest
 
 from baselines.bench_train import prepare_synthetic
-from baselines.config import resolve_config
 from baselines.evaluate import evaluate
 from baselines.floor import contract_margins
+from baselines.models import resolve_config
 from baselines.train import train
 
 SENSOR_GAP, LIDAR_SENSOR_GAP = 0.10, 0.05

@@ -11,10 +11,11 @@ import torch
 
 from baselines.attention import DeformableAttention, deformable_sample
 from baselines.blocks import bernstein_matrix
-from baselines.config import Config, apply_overrides, tiny
+from baselines.config import apply_overrides
 from baselines.data import Targets
 from baselines.encoder import SensorBatch, bev_cell_centres
 from baselines.matcher import focal_cost, hungarian_match, ordered_point_cost
+from baselines.models import load_config, resolve_config
 from baselines.models.lanegap import LaneGAP, LaneGAPLoss, select_paths
 from baselines.query_decoder import MARGIN
 from baselines.resnet import build_resnet
@@ -133,7 +134,7 @@ def test_projection_of_a_bev_point_to_its_pixel():
 
 
 def test_bev_cell_centres_follow_the_raster_convention():
-    config = tiny().encoder
+    config = resolve_config("tiny").encoder
     centres = bev_cell_centres(config)
     cell = 60 / config.bev_h
     assert torch.allclose(centres[0, 0], torch.tensor([-15 + cell / 2, 30 - cell / 2]))
@@ -158,7 +159,7 @@ def test_deformable_sample_reads_the_pixel_under_the_location():
 @pytest.mark.parametrize(("modality", "bezier_points"), [("camera", 0), ("lidar", 5), ("fusion", 0)])
 def test_lanegap_shapes_loss_and_gradients(modality, bezier_points):
     torch.manual_seed(0)
-    config = tiny()
+    config = resolve_config("tiny")
     config.encoder.modality = modality
     config.decoder.bezier_points = bezier_points
     model = LaneGAP(config)
@@ -194,7 +195,7 @@ def test_lanegap_shapes_loss_and_gradients(modality, bezier_points):
 def test_camera_encoder_reads_the_camera_that_sees_a_cell():
     # A BEV cell straight ahead must depend on the front camera's image and not on the rear one's.
     torch.manual_seed(0)
-    config = tiny()
+    config = resolve_config("tiny")
     config.encoder.camera_layers = 1
     model = LaneGAP(config).eval()
     batch = random_batch(batch=1)
@@ -209,13 +210,13 @@ def test_camera_encoder_reads_the_camera_that_sees_a_cell():
 
 def test_config_overrides_and_round_trip(tmp_path):
     config = apply_overrides(
-        tiny(),
+        resolve_config("tiny"),
         ["train.lr=3e-4", "encoder.kernel_size=5,5", "decoder.aux_seg=false", "encoder.modality=lidar"],
     )
     assert config.train.lr == 3e-4 and config.encoder.kernel_size == (5, 5)
     assert config.decoder.aux_seg is False and config.encoder.modality == "lidar"
     config.save(tmp_path / "config.json")
-    assert Config.load(tmp_path / "config.json") == config
+    assert load_config(tmp_path / "config.json") == config
     with pytest.raises(ValueError):
         apply_overrides(config, ["train.nope=1"])
 
@@ -228,7 +229,7 @@ def test_gflops_are_counted_for_every_modality(modality):
 
     counts = {}
     for name in ("camera", "lidar", modality):
-        config = apply_overrides(tiny(), [f"encoder.modality={name}"])
+        config = apply_overrides(resolve_config("tiny"), [f"encoder.modality={name}"])
         torch.manual_seed(0)
         counts[name] = count_gflops(LaneGAP(config).eval(), random_batch(batch=1))
     assert counts["camera"] > 0.01 and counts["lidar"] > 0.01

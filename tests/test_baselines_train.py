@@ -20,8 +20,9 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
-from baselines.config import Config, tiny
+from baselines.config import Config
 from baselines.data import PreparedDataset, collate, resample_polyline
+from baselines.models import load_config, resolve_config
 from baselines.train import lr_factor, train
 from pipeline import io
 from pipeline.camera import scaled_intrinsics
@@ -127,7 +128,7 @@ def write_toy_dataset(root: Path, frames: int = 6, split: str = "train") -> Path
 
 
 def toy_config(modality: str = "lidar", epochs: int = 2) -> Config:
-    config = tiny()
+    config = resolve_config("tiny")
     config.encoder.modality = modality
     config.data.image_scale_av2 = 0.25
     config.train.epochs = epochs
@@ -139,7 +140,7 @@ def toy_config(modality: str = "lidar", epochs: int = 2) -> Config:
 
 
 def test_lr_schedule_warms_up_then_decays():
-    config = tiny()
+    config = resolve_config("tiny")
     config.train.warmup_iters = 10
     factors = [lr_factor(step, 100, config) for step in range(101)]
     assert factors[0] == pytest.approx(config.train.warmup_ratio)
@@ -185,7 +186,7 @@ def test_training_resumes_exactly(tmp_path):
     assert straight["steps"] == 4
     train(config, data, tmp_path / "resumed", stop_after=1)
     assert torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=True)["epoch"] == 1
-    train(Config.load(tmp_path / "resumed" / "config.json"), data, tmp_path / "resumed", resume=True)
+    train(load_config(tmp_path / "resumed" / "config.json"), data, tmp_path / "resumed", resume=True)
     a = torch.load(tmp_path / "straight" / "checkpoint.pt", weights_only=True)
     b = torch.load(tmp_path / "resumed" / "checkpoint.pt", weights_only=True)
     assert a["step"] == b["step"] == 4
@@ -193,7 +194,7 @@ def test_training_resumes_exactly(tmp_path):
         assert torch.equal(tensor, b["model"][name]), name
     log = [json.loads(line) for line in (tmp_path / "resumed" / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log] == [1, 2, 3, 4] and all(np.isfinite(r["loss"]) for r in log)
-    assert Config.load(tmp_path / "straight" / "config.json") == config
+    assert load_config(tmp_path / "straight" / "config.json") == config
 
 
 def _ddp_worker(rank: int, world_size: int, port: int, data: str, out: str) -> None:
@@ -233,7 +234,7 @@ def test_cli_train_then_eval(tmp_path):
     data = write_toy_dataset(tmp_path, frames=4)
     run = tmp_path / "run"
     cli_train_toy(data, run)
-    config = Config.load(run / "config.json")
+    config = load_config(run / "config.json")
     assert config.preset == "tiny" and config.decoder.path_points == 10 and not config.decoder.aux_seg
     result = CliRunner().invoke(app, ["eval", "--run", str(run), "--device", "cpu"])
     assert result.exit_code == 0, result.output
@@ -259,7 +260,7 @@ def test_the_bev_grid_follows_the_dataset_range(tmp_path):
     with pytest.raises(ValueError, match="cropped to x \\(-25.0, 25.0\\)"):
         PreparedDataset(data, "train", config)
     train(config, data, tmp_path / "run")
-    saved = Config.load(tmp_path / "run" / "config.json")
+    saved = load_config(tmp_path / "run" / "config.json")
     assert saved.encoder.x_range == (-25.0, 25.0) and saved.encoder.y_range == (-50.0, 50.0)
     assert (saved.encoder.bev_h, saved.encoder.bev_w) == (67, 33)  # the tiny preset's 1.5 m cells
     assert len(PreparedDataset(data, "train", saved)) == 4

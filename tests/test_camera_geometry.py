@@ -12,9 +12,9 @@ import pytest
 import torch
 from test_synth import painted_lines
 
-from baselines.config import tiny
 from baselines.data import PreparedDataset
 from baselines.encoder import above_ground_to_bev
+from baselines.models import resolve_config
 from pipeline.camera import project_points
 from pipeline.io import read_table
 from pipeline.synth.world import build_world
@@ -54,7 +54,7 @@ def grey_levels(sample, points: np.ndarray) -> np.ndarray:
 def on_default_pillars(frame: dict, points: np.ndarray) -> np.ndarray:
     """BEV points moved to the tiny preset's pillar height above the frame's ground, as the camera
     encoder places its pillar points."""
-    (height,) = tiny().encoder.camera_heights
+    (height,) = resolve_config("tiny").encoder.camera_heights
     above_ground = torch.from_numpy(np.column_stack([points[:, :2], np.full(len(points), height)])).float()
     return above_ground_to_bev(above_ground, torch.tensor([frame["ground_z"]]))[0].numpy()
 
@@ -65,7 +65,7 @@ def test_bev_points_project_onto_the_paint_synth_drew(synth_prepared, dataset, h
     world = build_world(0)
     paint = painted_lines(world, ("SOLID_WHITE", "SOLID_YELLOW"))
     centres = np.concatenate([lane.centerline(0.1)[:, :2] for lane in world.lanes.values()])
-    config = tiny()
+    config = resolve_config("tiny")
     config.encoder.modality = "camera"
     data = PreparedDataset(synth_prepared[dataset], "train" if dataset == "av2" else "mini_train", config)
 
@@ -99,7 +99,7 @@ def test_prepare_records_the_ground_under_the_bev_origin(synth_prepared):
 def test_the_tiny_preset_crops_only_sky(synth_prepared, dataset):
     """The rows that `data.image_crop_top` cuts off hold no projection of the BEV grid's pillar points:
     the encoder sees every BEV cell in as many cameras, at the same image content, as uncropped."""
-    whole, cropped = tiny(), tiny()
+    whole, cropped = resolve_config("tiny"), resolve_config("tiny")
     assert cropped.data.image_crop_top > 0
     whole.data.image_crop_top = 0.0
     split = "train" if dataset == "av2" else "mini_train"

@@ -8,10 +8,10 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from baselines.config import resolve_config, tiny
+from baselines.config import tiny
 from baselines.data import Targets
 from baselines.encoder import SensorBatch
-from baselines.models import MODELS
+from baselines.models import MODELS, resolve_config
 from baselines.models.hdmapnet import (
     HDMapNetConfig,
     PostProcess,

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.config import resolve_config
 from baselines.data import PreparedDataset
-from baselines.models import build
+from baselines.models import build, resolve_config
 from benchmark.metrics import MetricParams
 from benchmark.path2graph import path2graph
 from benchmark.roundtrip import roundtrip

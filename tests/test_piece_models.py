@@ -11,11 +11,11 @@ import torch
 import torch.nn.functional as F
 
 from baselines.blocks import bernstein_basis, bernstein_matrix
-from baselines.config import resolve_config, tiny
+from baselines.config import tiny
 from baselines.data import PreparedDataset, Targets, resample_polyline
 from baselines.encoder import SensorBatch
 from baselines.matcher import hungarian_match
-from baselines.models import build, maptr, stsu
+from baselines.models import build, maptr, resolve_config, stsu
 from baselines.piecewise import AssociationHead, association_loss, association_targets
 from benchmark.metrics import MetricParams
 from benchmark.piece2graph import piece2graph

@@ -22,9 +22,8 @@ def invoke(*args) -> str:
 
 @pytest.mark.parametrize("model", ["lanegap", "hdmapnet"])
 def test_50x100_range_from_prepare_to_score(tmp_path_factory, model):
-    from baselines.config import Config
     from baselines.data import PreparedDataset
-    from baselines.models import build
+    from baselines.models import build, load_config
     from pipeline.synth import synth
 
     root = tmp_path_factory.getbasetemp() / "range_50x100"
@@ -39,7 +38,7 @@ def test_50x100_range_from_prepare_to_score(tmp_path_factory, model):
     run = tmp_path_factory.mktemp(model)
     invoke("train", "--model", model, "--data", data, "--out", run, "--preset", "tiny", "--modality", "lidar",
            "--epochs", "1", "--batch-size", "2", "--set", "train.threads=1")  # fmt: skip
-    config = Config.load(run / "config.json")
+    config = load_config(run / "config.json")
     # the tiny preset's 1.5 m cells over 50 x 100 m
     assert (config.encoder.x_range, config.encoder.y_range) == ((-25.0, 25.0), (-50.0, 50.0))
     assert (config.encoder.bev_h, config.encoder.bev_w) == (67, 33)

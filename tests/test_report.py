@@ -53,8 +53,8 @@ def graph_rows(graphs: dict[str, LaneGraph]) -> pa.Table:
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory) -> dict:
-    from baselines.config import resolve_config
     from baselines.evaluate import evaluate
+    from baselines.models import resolve_config
     from baselines.train import train
     from benchmark.metrics import MetricParams
     from benchmark.roundtrip import roundtrip

@@ -17,7 +17,7 @@ from test_baselines_train import toy_config, write_toy_dataset
 from torch.utils.data import DistributedSampler
 from typer.testing import CliRunner
 
-from baselines.config import Config
+from baselines.models import load_config
 from baselines.train import train
 from cli import app
 from pipeline import io
@@ -71,7 +71,7 @@ def test_torchrun_two_processes_match_one_process(tmp_path):
     # (b) the effective batch size, in the run's record and in metrics.json
     record = json.loads((run / "run.json").read_text())
     assert (record["world_size"], record["batch_per_process"], record["effective_batch_size"]) == (2, 2, 4)
-    assert Config.load(run / "config.json").train.batch_size == 4
+    assert load_config(run / "config.json").train.batch_size == 4
     result = CliRunner().invoke(app, ["eval", "--run", str(run), "--device", "cpu", "--no-floor"])
     assert result.exit_code == 0, result.output
     metrics = json.loads((run / "metrics.json").read_text())
@@ -80,7 +80,7 @@ def test_torchrun_two_processes_match_one_process(tmp_path):
     # (c) the normaliser is summed over the processes: 2 x 2 frames train as 1 x 4 frames
     first_step = [lanes[i] for i in list(DistributedSampler(range(FRAMES), 1, 0, seed=SEED))[:4]]
     assert first_step[0::2] != first_step[1::2]  # the ranks' lane counts differ: 1 + 1 against 2 + 2
-    config = Config.load(run / "config.json")
+    config = load_config(run / "config.json")
     config.train.threads = 1
     train(config, data, tmp_path / "single")
     single = [json.loads(line) for line in (tmp_path / "single" / "log.jsonl").read_text().splitlines()]

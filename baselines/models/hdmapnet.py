@@ -29,7 +29,7 @@ from torch import nn
 from baselines.config import Config
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
-from baselines.models import Built, preset_head
+from baselines.models.base import Built, preset_head
 from baselines.raster_targets import raster_losses
 from baselines.resnet import resnet18
 from benchmark.pixel2graph import pixel2graph

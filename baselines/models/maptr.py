@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from baselines.config import Config
-from baselines.models import Built, preset_head
+from baselines.models.base import Built, preset_head
 from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
 
 

@@ -19,7 +19,7 @@ import torch
 
 from baselines.blocks import bernstein_basis, bernstein_matrix
 from baselines.config import Config
-from baselines.models import Built, preset_head
+from baselines.models.base import Built, preset_head
 from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
 
 

@@ -1,5 +1,5 @@
-"""What every model module shares: the `Built` record that its `build(config)` returns, and the lookup
-of its head config by preset."""
+"""What every model module shares: the `Built` record that its `build(config)` returns, the lookup of
+its head config by preset, and the settings that the query models' heads (LaneGAP, MapTR, STSU) share."""
 
 from __future__ import annotations
 
@@ -23,3 +23,25 @@ def preset_head(model: str, heads: dict, preset: str):
     if preset not in heads:
         raise ValueError(f"{model} has no head size for preset {preset!r}: expected {', '.join(heads)}")
     return heads[preset]()
+
+
+@dataclass
+class QueryHeadConfig:
+    """The hierarchical-query decoder (baselines/query_decoder.py) and its set loss, as LaneGAP's, MapTR's
+    and STSU's heads share them; each adds its own instance count (`num_paths`, `num_pieces`) and the rest
+    of its modelling."""
+
+    layers: int = 6
+    heads: int = 8
+    ffn_channels: int = 512
+    deform_points: int = 4  # samples per head (per anchor) in the deformable cross-attention
+    dropout: float = 0.1
+    # 0: off; s: the decoder also reads the BEV features lifted to cells s times smaller, which a dense
+    # lane and direction loss on the prepared rasters trains (baselines/fine_bev.py; the tiny presets')
+    fine_scale: float = 0.0
+    fine_weight: float = 1.0
+    cls_weight: float = 2.0  # focal classification, in the loss and in the Hungarian matching's cost
+    point_weight: float = 5.0  # L1 of the matched instances' points (STSU: of their control points)
+    focal_alpha: float = 0.25
+    focal_gamma: float = 2.0
+    score_threshold: float = 0.4  # instances kept at inference

@@ -22,35 +22,22 @@ from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
 from baselines.fine_bev import fine_losses
 from baselines.matcher import hungarian_match
-from baselines.models.base import Built, preset_head
+from baselines.models.base import Built, QueryHeadConfig, preset_head
 from baselines.query_decoder import QueryDecoder
 from benchmark.path2graph import path2graph
 from pipeline.lane_graph import LaneGraph
 
 
 @dataclass
-class DecoderConfig:
-    """LaneGAP's MapTR-style path decoder and its loss (paper Eq. 3 and 4)."""
+class DecoderConfig(QueryHeadConfig):
+    """LaneGAP's MapTR-style path decoder and its loss (paper Eq. 3 and 4): the query models' shared
+    decoder settings (QueryHeadConfig) and LaneGAP's own."""
 
     num_paths: int = 50  # instance queries
     path_points: int = 30  # N points per path (10 / 20 / 30 / 40)
     bezier_points: int = 0  # 0: polyline head; K > 0: Bezier head with K control points (paper: 5)
-    layers: int = 6
-    heads: int = 8
-    ffn_channels: int = 512
-    deform_points: int = 4  # samples per head (per anchor) in the deformable cross-attention
-    dropout: float = 0.1
     aux_seg: bool = True  # auxiliary BEV segmentation (training only)
-    # 0: off; s: the decoder also reads the BEV features lifted to cells s times smaller, which a dense
-    # lane and direction loss on the prepared rasters trains (baselines/fine_bev.py; the tiny preset's)
-    fine_scale: float = 0.0
-    fine_weight: float = 1.0
-    cls_weight: float = 2.0
-    point_weight: float = 5.0
     seg_weight: float = 1.0
-    focal_alpha: float = 0.25
-    focal_gamma: float = 2.0
-    score_threshold: float = 0.4  # paths kept at inference
 
 
 def paper_head() -> DecoderConfig:

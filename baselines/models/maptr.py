@@ -13,29 +13,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from baselines.config import Config
-from baselines.models.base import Built, preset_head
+from baselines.models.base import Built, QueryHeadConfig, preset_head
 from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
 
 
 @dataclass
-class MapTRConfig:
+class MapTRConfig(QueryHeadConfig):
+    """The query models' shared decoder settings (QueryHeadConfig) and MapTR's own."""
+
     num_pieces: int = 100  # instance queries: frames hold more pieces than paths (pieces end at junctions)
     piece_points: int = 20  # points per piece (MapTR's 20; the prepared targets are resampled to it)
-    layers: int = 6
-    heads: int = 8
-    ffn_channels: int = 512
-    deform_points: int = 4  # samples per head in the deformable cross-attention
-    dropout: float = 0.1
-    cls_weight: float = 2.0
-    point_weight: float = 5.0
     direction_weight: float = 0.005
     link_weight: float = 1.0
-    fine_scale: float = 0.0  # the fine BEV level and its loss (baselines/fine_bev.py), as LaneGAP's
-    fine_weight: float = 1.0
     max_link_pos_weight: float = 50.0  # the association loss's positive weight is clamped to this
-    focal_alpha: float = 0.25
-    focal_gamma: float = 2.0
-    score_threshold: float = 0.4  # pieces kept at inference
     link_threshold: float = 0.5  # association probability above which i -> j is a link
 
 

@@ -19,30 +19,21 @@ import torch
 
 from baselines.blocks import bernstein_basis, bernstein_matrix
 from baselines.config import Config
-from baselines.models.base import Built, preset_head
+from baselines.models.base import Built, QueryHeadConfig, preset_head
 from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
 
 
 @dataclass
-class STSUConfig:
+class STSUConfig(QueryHeadConfig):
+    """The query models' shared decoder settings (QueryHeadConfig; point_weight weighs the L1 of the
+    control points) and STSU's own."""
+
     num_pieces: int = 100  # instance queries
     piece_points: int = 20  # the prepared pieces' points (fitted) and the curves' samples (post-processing)
     bezier_points: int = 4  # control points per piece (STSU: a cubic)
-    layers: int = 6
-    heads: int = 8
-    ffn_channels: int = 512
-    deform_points: int = 4
-    dropout: float = 0.1
-    cls_weight: float = 2.0
-    point_weight: float = 5.0  # L1 of the control points
     link_weight: float = 1.0
-    fine_scale: float = 0.0  # the fine BEV level and its loss (baselines/fine_bev.py), as LaneGAP's
-    fine_weight: float = 1.0
     max_link_pos_weight: float = 50.0  # the association loss's positive weight is clamped to this
-    focal_alpha: float = 0.25
-    focal_gamma: float = 2.0
-    score_threshold: float = 0.4
-    link_threshold: float = 0.5
+    link_threshold: float = 0.5  # association probability above which i -> j is a link
 
 
 # Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP within

@@ -295,22 +295,31 @@ def all_rng_states(distributed: bool) -> list[dict]:
     return states
 
 
-def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, stop_after: int = 0,
-          overwrite: bool = False) -> dict:  # fmt: skip
-    """Train `config` on the prepared dataset `data_dir`; returns a summary (loss, steps/s, seconds).
+@dataclass
+class Setup:
+    """Everything `train` sets up before its first step (`setup`)."""
 
-    resume: continue from out_dir/checkpoint.pt. stop_after: end this run after that many epochs
-    (0: run to config.train.epochs), e.g. to fit a time-limited job; a later resume carries on.
-    overwrite: start afresh in a folder that holds a run (refused otherwise: its checkpoint and log
-    would be replaced).
-    """
-    data_dir, out_dir = Path(data_dir), Path(out_dir)
-    if not resume and not overwrite and (out_dir / "config.json").exists():
-        raise ValueError(f"{out_dir} holds a run already: continue it with --resume, start it afresh with "
-                         "--overwrite, or choose another --out")  # fmt: skip
+    config: Config
+    trainer: Trainer
+    dataset: PreparedDataset
+    sampler: DistributedSampler
+    loader: DataLoader
+    total_steps: int
+    device: torch.device
+    rank: int
+    world_size: int
+
+    @property
+    def distributed(self) -> bool:
+        return self.world_size > 1
+
+
+def setup(config: Config, data_dir: Path) -> Setup:
+    """The process (DDP under torchrun), the BEV grid of the dataset, the model (built from the same seed
+    on every rank), the loader, the optimiser and its schedule, AMP."""
     device, rank, world_size = setup_process(config)
-    distributed, master, train_config = world_size > 1, rank == 0, config.train
-    use_dataset_range(config, data_dir, master)
+    train_config = config.train
+    use_dataset_range(config, data_dir, rank == 0)
     # The same seed on every rank builds the same model; the ranks' streams differ from here on.
     torch.manual_seed(train_config.seed)
     built = build(config)
@@ -333,8 +342,7 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
         pin_memory=device.type == "cuda",
         drop_last=len(dataset) >= train_config.batch_size,
     )
-    steps_per_epoch = len(loader)
-    total_steps = steps_per_epoch * train_config.epochs
+    total_steps = len(loader) * train_config.epochs
     optimizer = build_optimizer(model, config)
     scheduler = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: lr_factor(step, total_steps, config)
@@ -342,44 +350,122 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     autocast_dtype, needs_scaler = amp_settings(device, train_config.amp)
     trained = (
         DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
-        if distributed
+        if world_size > 1
         else model
     )
     trainer = Trainer(model, trained, built.loss, optimizer, scheduler,
                       torch.amp.GradScaler("cuda", enabled=needs_scaler), autocast_dtype, device,
                       train_config.grad_clip)  # fmt: skip
+    return Setup(config, trainer, dataset, sampler, loader, total_steps, device, rank, world_size)
 
-    start_epoch = 0
-    checkpoint_path = out_dir / CHECKPOINT
-    if resume:  # stale data: the dataset must have the targets the run was trained on
-        trained = json.loads((out_dir / "run.json").read_text()).get("targets", {})
-        check_targets(trained, data_dir, f"the run {out_dir}")
-        start_epoch = trainer.load(resume_checkpoint(out_dir, master), rank)
-        if master:  # drop log lines of steps after the checkpoint (an interrupted epoch)
-            lines = logged_lines(out_dir / "log.jsonl")
+
+class RunFolder:
+    """RUN_DIR (the module's docstring): a new run or one resumed, its log and its checkpoints. Only
+    rank 0 (`master`) writes."""
+
+    def __init__(self, path: Path, master: bool):
+        self.path, self.master = path, master
+        self.log_file = None
+
+    @staticmethod
+    def check_free(path: Path, resume: bool, overwrite: bool) -> None:
+        """Refuse to start afresh in a folder that holds a run: its checkpoint and log would be replaced."""
+        if not resume and not overwrite and (path / "config.json").exists():
+            raise ValueError(f"{path} holds a run already: continue it with --resume, start it afresh with "
+                             "--overwrite, or choose another --out")  # fmt: skip
+
+    def start(self, config: Config, data_dir: Path, world_size: int, device: torch.device) -> int:
+        """A new run: config.json, run.json and an empty log; returns the first epoch, 0."""
+        if self.master:
+            self.path.mkdir(parents=True, exist_ok=True)
+            config.save(self.path / "config.json")
+            run = {
+                "data": str(data_dir.resolve()),
+                "world_size": world_size,
+                "batch_per_process": config.train.batch_size // world_size,
+                "effective_batch_size": config.train.batch_size,  # processes x per-process batch
+                "device": device.type,
+                "targets": dataset_targets(data_dir),  # cli eval / score / train --resume compare them
+            }
+            (self.path / "run.json").write_text(json.dumps(run, indent=2) + "\n")
+            (self.path / "log.jsonl").write_text("")
+        return 0
+
+    def resume(self, trainer: Trainer, data_dir: Path, rank: int) -> int:
+        """Continue the run: refuse stale data (the dataset must have the targets the run was trained on),
+        restore its checkpoint (resume_checkpoint) and drop the log lines of steps after it (an interrupted
+        epoch); returns the epoch to start from."""
+        targets = json.loads((self.path / "run.json").read_text()).get("targets", {})
+        check_targets(targets, data_dir, f"the run {self.path}")
+        epoch = trainer.load(resume_checkpoint(self.path, self.master), rank)
+        if self.master:
+            lines = logged_lines(self.path / "log.jsonl")
             kept = "".join(line for line in lines if json.loads(line)["step"] <= trainer.step)
-            io.write_atomic(out_dir / "log.jsonl", lambda tmp: tmp.write_text(kept))
-    elif master:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        config.save(out_dir / "config.json")
-        run = {
-            "data": str(data_dir.resolve()),
-            "world_size": world_size,
-            "batch_per_process": train_config.batch_size // world_size,
-            "effective_batch_size": train_config.batch_size,  # processes x per-process batch
-            "device": device.type,
-            "targets": dataset_targets(data_dir),  # cli eval / score / train --resume compare them
-        }
-        (out_dir / "run.json").write_text(json.dumps(run, indent=2) + "\n")
-        (out_dir / "log.jsonl").write_text("")
-    if master:
-        parameters = sum(p.numel() for p in model.parameters())
-        console.print(
-            f"{config.model} {config.encoder.modality}: {parameters / 1e6:.2f} M parameters, "
-            f"{len(dataset)} frames, {steps_per_epoch} steps per epoch, "
-            f"{world_size} process(es) on {device.type}"
-        )
+            io.write_atomic(self.path / "log.jsonl", lambda tmp: tmp.write_text(kept))
+        return epoch
 
+    def open_log(self) -> None:
+        if self.master:
+            self.log_file = (self.path / "log.jsonl").open("a")
+
+    def log(self, record: dict) -> None:
+        self.log_file.write(json.dumps(record) + "\n")
+        self.log_file.flush()
+
+    def save(self, trainer: Trainer, epoch: int, config: Config, rng_states: list[dict]) -> None:
+        if self.master:
+            trainer.save(self.path / CHECKPOINT, epoch, config, rng_states)
+
+    def finish(self, summary: dict) -> None:
+        """Close the log; the summary into run.json."""
+        if self.log_file is not None:
+            self.log_file.close()
+        if self.master:
+            run = json.loads((self.path / "run.json").read_text())
+            io.write_json(self.path / "run.json", {**run, "summary": summary})
+
+
+@dataclass
+class Tally:
+    """This run's steps, the seconds they took (the waits for data included) and the last loss."""
+
+    steps: int = 0
+    seconds: float = 0.0
+    loss: float = float("nan")
+
+
+def train_one_epoch(s: Setup, epoch: int, run: RunFolder, tally: Tally, progress: Progress, task) -> None:
+    """One pass over the training split: a step per batch (its losses averaged over the processes), the
+    progress bar, a log line every train.log_every steps and at the last step."""
+    trainer, train_config = s.trainer, s.config.train
+    trainer.model.train()
+    s.sampler.set_epoch(epoch)
+    epoch_start = last = time.perf_counter()
+    for batch in s.loader:  # the step time below includes the wait for data
+        losses, grad_norm = trainer.train_step(batch)
+        losses = mean_losses(losses, s.distributed)
+        now = time.perf_counter()
+        tally.seconds += now - last
+        last = now
+        tally.steps += 1
+        tally.loss = float(losses["loss"].detach())
+        speed = tally.steps / tally.seconds
+        progress.update(task, advance=1, epoch=epoch + 1, loss=tally.loss, speed=speed)
+        step = trainer.step
+        if run.master and (step % train_config.log_every == 0 or step == s.total_steps):
+            run.log({
+                "step": step,
+                "epoch": epoch + 1,
+                "lr": trainer.optimizer.param_groups[0]["lr"],
+                **{k: float(v.detach()) for k, v in losses.items()},
+                "grad_norm": float(grad_norm),
+                "steps_per_s": speed,
+                "samples_per_s": speed * train_config.batch_size,
+                "epoch_seconds": time.perf_counter() - epoch_start,
+            })  # fmt: skip
+
+
+def progress_bar(master: bool) -> Progress:
     columns = [
         TextColumn("epoch {task.fields[epoch]}"),
         BarColumn(),
@@ -387,60 +473,56 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
         TextColumn("loss {task.fields[loss]:.3f}  {task.fields[speed]:.2f} steps/s"),
         TimeElapsedColumn(),
     ]
-    progress = Progress(*columns, console=console, disable=not master)
-    log_file = (out_dir / "log.jsonl").open("a") if master else None
-    train_seconds, train_steps, loss_value = 0.0, 0, float("nan")
-    with progress:
-        task = progress.add_task(
-            "train", total=total_steps, completed=trainer.step, epoch=start_epoch, loss=0.0, speed=0.0
+    return Progress(*columns, console=console, disable=not master)
+
+
+def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, stop_after: int = 0,
+          overwrite: bool = False) -> dict:  # fmt: skip
+    """Train `config` on the prepared dataset `data_dir`; returns a summary (loss, steps/s, seconds).
+
+    resume: continue from out_dir/checkpoint.pt. stop_after: end this run after that many epochs
+    (0: run to config.train.epochs), e.g. to fit a time-limited job; a later resume carries on.
+    overwrite: start afresh in a folder that holds a run (refused otherwise: its checkpoint and log
+    would be replaced).
+    """
+    data_dir, out_dir = Path(data_dir), Path(out_dir)
+    RunFolder.check_free(out_dir, resume, overwrite)
+    s = setup(config, data_dir)
+    run = RunFolder(out_dir, master=s.rank == 0)
+    if resume:
+        start_epoch = run.resume(s.trainer, data_dir, s.rank)
+    else:
+        start_epoch = run.start(config, data_dir, s.world_size, s.device)
+    if run.master:
+        parameters = sum(p.numel() for p in s.trainer.model.parameters())
+        console.print(
+            f"{config.model} {config.encoder.modality}: {parameters / 1e6:.2f} M parameters, "
+            f"{len(s.dataset)} frames, {len(s.loader)} steps per epoch, "
+            f"{s.world_size} process(es) on {s.device.type}"
         )
-        last_epoch = min(train_config.epochs, start_epoch + stop_after) if stop_after else train_config.epochs
-        for epoch in range(start_epoch, last_epoch):
-            model.train()
-            sampler.set_epoch(epoch)
-            epoch_start = last = time.perf_counter()
-            for batch in loader:  # the step time below includes the wait for data
-                losses, grad_norm = trainer.train_step(batch)
-                losses = mean_losses(losses, distributed)
-                now = time.perf_counter()
-                train_seconds += now - last
-                last = now
-                train_steps += 1
-                loss_value = float(losses["loss"].detach())
-                speed = train_steps / train_seconds
-                progress.update(task, advance=1, epoch=epoch + 1, loss=loss_value, speed=speed)
-                step = trainer.step
-                if log_file is not None and (step % train_config.log_every == 0 or step == total_steps):
-                    record = {
-                        "step": step,
-                        "epoch": epoch + 1,
-                        "lr": optimizer.param_groups[0]["lr"],
-                        **{k: float(v.detach()) for k, v in losses.items()},
-                        "grad_norm": float(grad_norm),
-                        "steps_per_s": speed,
-                        "samples_per_s": speed * train_config.batch_size,
-                        "epoch_seconds": time.perf_counter() - epoch_start,
-                    }
-                    log_file.write(json.dumps(record) + "\n")
-                    log_file.flush()
-            states = all_rng_states(distributed)
-            if master:
-                trainer.save(checkpoint_path, epoch + 1, config, states)
-    if log_file is not None:
-        log_file.close()
+    run.open_log()
+    tally = Tally()
+    epochs = config.train.epochs
+    with progress_bar(run.master) as progress:
+        task = progress.add_task(
+            "train", total=s.total_steps, completed=s.trainer.step, epoch=start_epoch, loss=0.0, speed=0.0
+        )
+        for epoch in range(start_epoch, min(epochs, start_epoch + stop_after) if stop_after else epochs):
+            train_one_epoch(s, epoch, run, tally, progress, task)
+            states = all_rng_states(s.distributed)  # every rank takes part
+            run.save(s.trainer, epoch + 1, config, states)
+    batch_size = config.train.batch_size
     summary = {
-        "final_loss": loss_value,
-        "steps": trainer.step,
-        "train_seconds": train_seconds,
-        "steps_per_s": train_steps / train_seconds if train_seconds else 0.0,
-        "samples_per_s": train_steps * train_config.batch_size / train_seconds if train_seconds else 0.0,
+        "final_loss": tally.loss,
+        "steps": s.trainer.step,
+        "train_seconds": tally.seconds,
+        "steps_per_s": tally.steps / tally.seconds if tally.seconds else 0.0,
+        "samples_per_s": tally.steps * batch_size / tally.seconds if tally.seconds else 0.0,
     }
-    if device.type == "cuda":  # this process's peak; every rank holds the same model and batch size
-        summary["gpu_memory_gib"] = torch.cuda.max_memory_allocated(device) / 2**30
-    if master:
-        run = json.loads((out_dir / "run.json").read_text())
-        io.write_json(out_dir / "run.json", {**run, "summary": summary})
-    if distributed:
+    if s.device.type == "cuda":  # this process's peak; every rank holds the same model and batch size
+        summary["gpu_memory_gib"] = torch.cuda.max_memory_allocated(s.device) / 2**30
+    run.finish(summary)
+    if s.distributed:
         dist.barrier()
         dist.destroy_process_group()
     return summary

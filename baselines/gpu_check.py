@@ -142,13 +142,14 @@ def main() -> int:
         table.add_column(column, justify="left" if column == "model" else "right")
     for row in rows:
         table.add_row(row["model"], *(f"{row[k]:.3f}" for k in ("topo", "junction_topo", "sensor_gap",
-                      "best_constant", "over_best_constant")), f"{row['samples_per_s']:.1f}",
+                      "best_constant", "over_best_constant")), f"{row['samples_per_s']:.2f}",
                       f"{row['gpu_memory_gib']:.1f}")  # fmt: skip
     console.print(table)
-    leader = max(rows, key=lambda row: row["junction_topo"])["model"]
-    console.print(
-        f"Junction TOPO F1 is led by {leader} (the paper's claim: LaneGAP). Report: {out / 'report'}"
-    )
+    best = max(row["junction_topo"] for row in rows)
+    leaders = [row["model"] for row in rows if row["junction_topo"] == best]
+    console.print(f"Junction TOPO F1 is led by {' and '.join(leaders)} (the paper's claim: LaneGAP; the "
+                  "report's summary says whether a lead is beyond the bootstrap interval)")  # fmt: skip
+    console.print(f"wrote {out / 'runs'} and {out / 'report' / 'report.md'}")
     if args.smoke:
         failures = smoke_failures(out, rows)
         for failure in failures:

@@ -19,8 +19,10 @@ from __future__ import annotations
 import json
 import time
 from contextlib import nullcontext
+from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
@@ -44,6 +46,7 @@ from benchmark.score import (
     score_frames,
 )
 from pipeline import io
+from pipeline.lane_graph import LaneGraph
 from pipeline.manifest import check_targets
 from pipeline.progress import tracked
 
@@ -75,6 +78,103 @@ def count_gflops(model: torch.nn.Module, sensors) -> float:
     return counter.get_total_flops() / 1e9
 
 
+@dataclass
+class Inference:
+    """Every frame's predicted lane graph (in the loader's order), the forward pass's GFLOPs, and the
+    seconds of the frames after the warm-up: the network's alone, and with the post-processing."""
+
+    graphs: dict[str, LaneGraph]
+    gflops: float
+    timed_frames: int
+    net_seconds: float
+    total_seconds: float
+
+    def rates(self) -> dict:
+        timed = self.timed_frames
+        return {
+            "fps_net": timed / self.net_seconds if self.net_seconds else 0.0,
+            "fps": timed / self.total_seconds if self.total_seconds else 0.0,
+            "postprocess_ms": 1000 * (self.total_seconds - self.net_seconds) / timed if timed else 0.0,
+        }
+
+
+def predict(built: Built, loader: DataLoader, device: torch.device, autocast_dtype: torch.dtype | None,
+            warmup_frames: int, description: str) -> Inference:  # fmt: skip
+    """Run the model and its post-processing on every frame of `loader` (batches of one), timing the
+    frames after the first `warmup_frames`; the GFLOPs are counted on the first frame."""
+
+    def sync() -> None:
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+
+    graphs = {}
+    net_seconds = total_seconds = 0.0
+    gflops = 0.0
+    frames = len(loader.dataset)
+    for index, batch in enumerate(tracked(loader, description, frames)):
+        sensors = batch.sensors.to(device)
+        if index == 0:
+            gflops = count_gflops(built.model, sensors)
+        sync()
+        start = time.perf_counter()
+        autocast = torch.autocast(device.type, dtype=autocast_dtype) if autocast_dtype else nullcontext()
+        with torch.no_grad(), autocast:
+            outputs = built.model(sensors)
+        sync()
+        network_done = time.perf_counter()
+        graph = built.to_graphs(outputs)[0]
+        done = time.perf_counter()
+        if index >= warmup_frames:
+            net_seconds += network_done - start
+            total_seconds += done - start
+        graphs[batch.frame_ids[0]] = graph
+    return Inference(graphs, gflops, frames - warmup_frames, net_seconds, total_seconds)
+
+
+def score_predictions(
+    graphs: dict[str, LaneGraph], ground_truth: dict[str, LaneGraph], params: MetricParams, bootstrap: int
+) -> tuple[dict, np.ndarray]:
+    """The scores of the predicted frames (by frame id) with a 95 % interval beside each F1 from
+    `bootstrap` draws over them, and each frame's counts (FRAME_COUNTS, for `cli report`'s paired
+    intervals)."""
+    pairs = [(graphs[frame_id], ground_truth[frame_id]) for frame_id in sorted(graphs)]
+    scores, frame_counts = score_frames(pairs, params)
+    add_intervals(scores, frame_counts, bootstrap)
+    return scores, frame_counts
+
+
+def floor_scores(
+    metrics: dict,
+    graphs: dict[str, LaneGraph],
+    ground_truth: dict[str, LaneGraph],
+    dataset: PreparedDataset,
+    config: Config,
+    params: MetricParams,
+    data_dir: Path,
+) -> dict:
+    """metrics["floor"]: the sensor-blind floor (baselines/floor.py) and the model's margin over it."""
+    in_train = pc.field("split") == config.train.train_split
+    train_ids = io.read_table(data_dir, "frames", ["frame_id"], in_train)["frame_id"].to_pylist()
+    floor = blind_floor(
+        graphs, ground_truth, dataset.frames, train_ids, config.train.train_split, params,
+        data_dir / "floor_cache",
+    )  # fmt: skip
+    floor["margin"] = floor_margins({**metrics, "floor": floor}) if floor["f1"] else None
+    return floor
+
+
+def write_evaluation(
+    run_dir: Path, graphs: dict[str, LaneGraph], targets: dict, frame_counts: np.ndarray, metrics: dict
+) -> None:
+    """predictions.parquet (its metadata: the run's training targets), frame_counts.parquet and
+    metrics.json, each written atomically."""
+    schema = io.SCHEMAS["graphs"].with_metadata({TARGETS_KEY: json.dumps(targets)})
+    table = pa.Table.from_pylist([graph_row(frame_id, graph) for frame_id, graph in graphs.items()], schema)
+    io.write_atomic(run_dir / "predictions.parquet", lambda tmp: pq.write_table(table, tmp))
+    write_frame_counts(run_dir / FRAME_COUNTS, sorted(graphs), frame_counts)
+    io.write_json(run_dir / "metrics.json", metrics)
+
+
 def evaluate(
     run_dir: Path,
     data_dir: Path | None = None,
@@ -91,7 +191,6 @@ def evaluate(
     run_dir = Path(run_dir)
     device_ = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     built, config = load_model(run_dir, device_)
-    model = built.model
     if config.train.threads and device_.type == "cpu":
         torch.set_num_threads(config.train.threads)
     run = json.loads((run_dir / "run.json").read_text())
@@ -102,71 +201,35 @@ def evaluate(
     loader = DataLoader(dataset, batch_size=1, num_workers=config.data.num_workers, collate_fn=collate)
     autocast_dtype, _ = amp_settings(device_, config.train.amp)
     warmup_frames = min(warmup_frames, len(dataset) - 1)  # time at least one frame
+    inference = predict(built, loader, device_, autocast_dtype, warmup_frames, f"predict {split}")
 
-    def sync() -> None:
-        if device_.type == "cuda":
-            torch.cuda.synchronize(device_)
-
-    rows, predictions = [], {}
-    net_seconds = total_seconds = 0.0
-    gflops = 0.0
-    for index, batch in enumerate(tracked(loader, f"predict {split}", len(dataset))):
-        sensors = batch.sensors.to(device_)
-        if index == 0:
-            gflops = count_gflops(model, sensors)
-        sync()
-        start = time.perf_counter()
-        autocast = torch.autocast(device_.type, dtype=autocast_dtype) if autocast_dtype else nullcontext()
-        with torch.no_grad(), autocast:
-            outputs = model(sensors)
-        sync()
-        network_done = time.perf_counter()
-        graph = built.to_graphs(outputs)[0]
-        done = time.perf_counter()
-        if index >= warmup_frames:
-            net_seconds += network_done - start
-            total_seconds += done - start
-        predictions[batch.frame_ids[0]] = graph
-        rows.append(graph_row(batch.frame_ids[0], graph))
     # `cli score` scores every frame of the ground truth; here only the frames of this split.
     ground_truth = graphs_from_table(read_graph_table(data_dir), data_dir)
-    pairs = [(predictions[frame_id], ground_truth[frame_id]) for frame_id in sorted(predictions)]
     metric_params = MetricParams(bev_range=default_range(data_dir))
-    # each frame's counts: the bootstrap's intervals now, and `cli report`'s paired ones (FRAME_COUNTS)
-    scores, frame_counts = score_frames(pairs, metric_params)
-    add_intervals(scores, frame_counts, bootstrap)
-    scores.update(pred=str(run_dir / "predictions.parquet"), gt=str(data_dir), frames_predicted=len(pairs))
-    timed = len(dataset) - warmup_frames
+    scores, frame_counts = score_predictions(inference.graphs, ground_truth, metric_params, bootstrap)
+    scores.update(
+        pred=str(run_dir / "predictions.parquet"), gt=str(data_dir), frames_predicted=len(inference.graphs)
+    )
     metrics = {
         **scores,
         "metric_params": scores["params"],  # the thresholds; `params` is the parameter count here
         "split": split,
         "data": str(data_dir),
-        "params": sum(p.numel() for p in model.parameters()),
+        "params": sum(p.numel() for p in built.model.parameters()),
         "model": config.model,
         "modeling": built.modeling,
         # torch's FLOP counter (forward pass, batch 1): matmuls and convolutions; the deformable
         # attention's bilinear sampling and the LiDAR scatter are not counted
-        "gflops": gflops,
-        "fps_net": timed / net_seconds if net_seconds else 0.0,
-        "fps": timed / total_seconds if total_seconds else 0.0,
-        "postprocess_ms": 1000 * (total_seconds - net_seconds) / timed if timed else 0.0,
+        "gflops": inference.gflops,
+        **inference.rates(),
         "device": torch.cuda.get_device_name(device_) if device_.type == "cuda" else "cpu",
         "world_size": run.get("world_size", 1),  # the training's processes and batch over all of them
         "effective_batch_size": run.get("effective_batch_size", config.train.batch_size),
     }
     if floor:
-        in_train = pc.field("split") == config.train.train_split
-        train_ids = io.read_table(data_dir, "frames", ["frame_id"], in_train)["frame_id"].to_pylist()
-        metrics["floor"] = blind_floor(
-            predictions, ground_truth, dataset.frames, train_ids, config.train.train_split, metric_params,
-            data_dir / "floor_cache",
-        )  # fmt: skip
-        metrics["floor"]["margin"] = floor_margins(metrics) if metrics["floor"]["f1"] else None
+        metrics["floor"] = floor_scores(
+            metrics, inference.graphs, ground_truth, dataset, config, metric_params, data_dir
+        )
     metrics["config"] = config.to_dict()
-    schema = io.SCHEMAS["graphs"].with_metadata({TARGETS_KEY: json.dumps(run.get("targets", {}))})
-    table = pa.Table.from_pylist(rows, schema)
-    io.write_atomic(run_dir / "predictions.parquet", lambda tmp: pq.write_table(table, tmp))
-    write_frame_counts(run_dir / FRAME_COUNTS, sorted(predictions), frame_counts)
-    io.write_json(run_dir / "metrics.json", metrics)
+    write_evaluation(run_dir, inference.graphs, run.get("targets", {}), frame_counts, metrics)
     return metrics

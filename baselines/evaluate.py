@@ -212,10 +212,9 @@ def evaluate(
     )
     metrics = {
         **scores,
-        "metric_params": scores["params"],  # the thresholds; `params` is the parameter count here
         "split": split,
         "data": str(data_dir),
-        "params": sum(p.numel() for p in built.model.parameters()),
+        "params": sum(p.numel() for p in built.model.parameters()),  # the thresholds: metric_params
         "model": config.model,
         "modeling": built.modeling,
         # torch's FLOP counter (forward pass, batch 1): matmuls and convolutions; the deformable

@@ -189,7 +189,7 @@ def blind_floor(
 
 def without_params(scores: dict) -> dict:
     """A score_pairs result without its thresholds, which are the model's own (metric_params)."""
-    return {name: value for name, value in scores.items() if name != "params"}
+    return {name: value for name, value in scores.items() if name != "metric_params"}
 
 
 def floor_margins(metrics: dict) -> dict:

@@ -1042,7 +1042,7 @@ class Totals:
             "directed": self.directed.scores(),
             "undirected": self.undirected.scores(),
             "miou": ratio(self.iou.intersection, self.iou.union),
-            "params": self.params.as_dict(),
+            "metric_params": self.params.as_dict(),
         }
 
 

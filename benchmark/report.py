@@ -608,7 +608,9 @@ def load_roundtrips(paths: list[Path]) -> list[tuple[Path, dict]]:
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such roundtrip JSON")
         result = read_json(path)
-        missing = [key for key in ("via", "frames", "directed", "undirected", "params") if key not in result]
+        if "params" in result and "metric_params" not in result:  # a file from before the key's rename
+            result["metric_params"] = result.pop("params")
+        missing = [k for k in ("via", "frames", "directed", "undirected", "metric_params") if k not in result]
         if missing:
             raise ValueError(f"{path}: not a `cli roundtrip` result (no {', '.join(missing)})")
         out.append((path, result))
@@ -624,10 +626,10 @@ def roundtrip_tables(
         groups.setdefault(str(result.get("data", "?")), []).append((path, result))
     tables = []
     for data, members in sorted(groups.items()):
-        params = members[0][1]["params"]
+        params = members[0][1]["metric_params"]
         for path, result in members[1:]:
-            if result["params"] != params:
-                differ = [k for k in sorted(params) if params.get(k) != result["params"].get(k)]
+            if result["metric_params"] != params:
+                differ = [k for k in sorted(params) if params.get(k) != result["metric_params"].get(k)]
                 raise ValueError(
                     f"{path}: scored with other metric parameters ({', '.join(differ)}) than "
                     f"{members[0][0]}; they cannot share a table"

@@ -264,8 +264,8 @@ def test_junction_anchor_falls_back_to_the_nearest_predicted_vertex():
 
 def test_params_are_recorded_and_checked():
     result = scores(LANE, LANE, reach_radius=5.0)
-    assert result["params"]["reach_radius"] == 5.0
-    assert set(result["params"]) >= {"step", "match_radius", "reach_radius", "matching"}
+    assert result["metric_params"]["reach_radius"] == 5.0
+    assert set(result["metric_params"]) >= {"step", "match_radius", "reach_radius", "matching"}
     with pytest.raises(ValueError, match="matching"):
         MetricParams(matching="hungarian")
     with pytest.raises(ValueError, match="step"):
@@ -280,7 +280,7 @@ def test_optimal_matching_option():
     assert_scores(scores(pred, gt), "directed", "topo", Fraction(1, 2), Fraction(1, 2))
     optimal = scores(pred, gt, matching="optimal")
     assert_scores(optimal, "directed", "topo", 1, 1)
-    assert optimal["params"]["matching"] == "optimal"
+    assert optimal["metric_params"]["matching"] == "optimal"
 
 
 # ---------------------------------------------------------------------------------------------------

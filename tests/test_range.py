@@ -61,5 +61,5 @@ def test_50x100_range_from_prepare_to_score(tmp_path_factory, model):
     score = run / "score.json"
     invoke("score", "--pred", run / "predictions.parquet", "--gt", data, "--out", score)
     scored = json.loads(score.read_text())  # the frames of the predicted split: the val log's 3 of 9
-    assert scored["params"]["bev_range"] == "50x100" and scored["splits"] == ["val"]
+    assert scored["metric_params"]["bev_range"] == "50x100" and scored["splits"] == ["val"]
     assert (scored["frames"], scored["frames_predicted"], scored["frames_missing"]) == (3, 3, 0)

@@ -229,6 +229,24 @@ def test_miou_ablation_and_roundtrip_tables(made):
             assert abs(number(cell) - 100 * result[mode][metric][stat]) <= 0.05 + 1e-9
 
 
+def test_a_roundtrip_file_that_names_its_thresholds_params_is_read(tmp_path):
+    """`cli roundtrip` and `cli score` name the thresholds `metric_params`, as metrics.json does (where
+    `params` is the parameter count); a round trip written when they were `params` gives the same table."""
+    from benchmark.metrics import score_graphs
+    from benchmark.report import load_roundtrips, roundtrip_tables
+
+    lane = LaneGraph(np.zeros(2), np.array([0.0, 5.0]), np.array([0], np.int32), np.array([1], np.int32))
+    result = {**score_graphs([(lane, lane)]), "via": "path", "data": str(tmp_path / "prepared")}
+    old = {("params" if key == "metric_params" else key): value for key, value in result.items()}
+    paths = [tmp_path / "new.json", tmp_path / "old.json"]
+    for path, content in zip(paths, (result, old)):
+        path.write_text(json.dumps(content))
+    tables = [roundtrip_tables(load_roundtrips([path]))[0] for path in paths]
+    (_, _, new_rows, new_params), (_, _, old_rows, old_params) = tables
+    assert "params" not in result and old_params == new_params == result["metric_params"]
+    assert [row[2:] for row in old_rows] == [row[2:] for row in new_rows] and new_rows[0][1] == "new.json"
+
+
 def test_the_papers_rows_stand_beside_the_measured_tables(made):
     """Tab. 1 and tab:iou under each dataset's block, tab:schedule beside the ablation of epochs,
     tab:postproc beside the round trips; every number read back equals the data file's."""

@@ -42,13 +42,13 @@ def gt_file(tmp_path):
 def test_perfect_prediction_and_the_json_shape(gt_file, tmp_path):
     out = tmp_path / "deep" / "metrics.json"
     result = score(gt_file, gt_file, out)
-    assert list(result)[:5] == ["frames", "directed", "undirected", "miou", "params"]
+    assert list(result)[:5] == ["frames", "directed", "undirected", "miou", "metric_params"]
     assert result["frames"] == 2
     for mode in ("directed", "undirected"):
         assert list(result[mode]) == ["topo", "junction_topo"]
         for metric in result[mode].values():
             assert metric == {"precision": 1.0, "recall": 1.0, "f1": 1.0}
-    assert result["params"] == MetricParams().as_dict()
+    assert result["metric_params"] == MetricParams().as_dict()
     assert json.loads(out.read_text()) == result
 
 
@@ -63,9 +63,9 @@ def test_a_frame_without_prediction_counts_as_empty(gt_file, tmp_path):
 
 def test_params_reach_the_metric_and_the_file(gt_file):
     result = score(gt_file, gt_file, reach_radius=2.0, matching="optimal", bev_range="50x100")
-    assert result["params"]["reach_radius"] == 2.0
-    assert result["params"]["matching"] == "optimal"
-    assert result["params"]["bev_range"] == "50x100"
+    assert result["metric_params"]["reach_radius"] == 2.0
+    assert result["metric_params"]["matching"] == "optimal"
+    assert result["metric_params"]["bev_range"] == "50x100"
 
 
 def test_more_workers_give_the_same_digits(prepared_av2, tmp_path):
@@ -93,7 +93,7 @@ def test_a_prepared_dataset_is_ground_truth(prepared_av2, tmp_path):
     assert result["splits"] == [split] and len(splits) > in_split  # the other split is not scored
     counts = (result["frames"], result["frames_predicted"], result["frames_missing"])
     assert counts == (in_split, 3, in_split - 3)
-    assert result["params"]["bev_range"] == "30x60"
+    assert result["metric_params"]["bev_range"] == "30x60"
     assert 0 < result["directed"]["topo"]["recall"] < 0.05 and result["directed"]["topo"]["precision"] == 1.0
 
 

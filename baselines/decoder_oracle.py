@@ -52,9 +52,12 @@ class OracleModel(nn.Module):
 
     def __init__(self, model: nn.Module, channels: int):
         super().__init__()
+        # BatchNorm at the end: without it the stem's output is small and half a per-channel constant, and
+        # the decoder's cross-attention barely reads it at first (docs/EXPERIMENTS.md, 2026-12-03)
         self.stem = nn.Sequential(
-            nn.Conv2d(3, channels, 3, padding=1), nn.ReLU(True), nn.Conv2d(channels, channels, 3, padding=1)
-        )
+            nn.Conv2d(3, channels, 3, padding=1), nn.ReLU(True), nn.Conv2d(channels, channels, 3, padding=1),
+            nn.BatchNorm2d(channels),
+        )  # fmt: skip
         self.model = model
         self.model.encoder = nn.Identity()  # the sensor encoder is what this replaces
 

@@ -1,4 +1,6 @@
-"""`cli prepare --executor ray`: one Ray task per log, on a local instance or on a running cluster.
+"""The executors of `cli prepare`: each runs the work it is given for one log on every log, and returns
+the results in log order. `run_local`: this process, or a fork pool; `run_ray` (`--executor ray`): one Ray
+task per log, on a local instance or on a running cluster.
 
 Each task runs the work it is given for one log (`cli prepare`: `prepare_log`), which writes the log's
 shards itself, exactly as the local executor does, so the shards are the same bytes; `root` and `out`
@@ -19,6 +21,7 @@ numpy buffers only); per-worker loading pays that once per process.
 from __future__ import annotations
 
 import logging
+import multiprocessing
 from collections.abc import Callable
 
 from pipeline.errors import DataError
@@ -36,6 +39,22 @@ def import_ray():
     except ImportError as error:
         raise RayMissing(INSTALL_HINT) from error
     return ray
+
+
+def run_local(jobs: list, work: Callable, workers: int, on_done: Callable) -> list:
+    """work(job) of every job, in job order: in this process (workers <= 1) or in a fork pool of `workers`
+    (its processes inherit what this one has loaded); on_done(job) as each log finishes."""
+    results = []
+    if workers <= 1:
+        for job in jobs:
+            results.append(work(job))
+            on_done(job)
+        return results
+    with multiprocessing.get_context("fork").Pool(workers) as pool:
+        for job, result in zip(jobs, pool.imap(work, jobs)):
+            results.append(result)
+            on_done(job)
+    return results
 
 
 def run_task(work: Callable, job):

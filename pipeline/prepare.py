@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import functools
 import json
-import multiprocessing
 import resource
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from importlib import metadata
 from pathlib import Path
@@ -18,6 +18,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from pipeline import io
 from pipeline.errors import DataError
+from pipeline.executor import import_ray, run_local, run_ray
 from pipeline.geometry import matrix_quaternion
 from pipeline.lane_graph import LaneMap
 from pipeline.records import Frame, Log
@@ -297,10 +298,6 @@ def prepare_log(
     return result
 
 
-def _work(args) -> LogResult:
-    return prepare_log(*args)
-
-
 def package_versions() -> dict[str, str]:
     names = (
         "numpy",
@@ -319,6 +316,135 @@ def package_versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             pass
     return versions
+
+
+def select_jobs(
+    dataset: str, root: Path, version: str, split: str | None, frame_stride: int,
+    split_files: dict[str, Path] | None,
+) -> tuple[list[Job], int]:  # fmt: skip
+    """The logs to prepare and how many logs the split files leave out; a root without one is an error
+    (a wrong --root or --dataset would otherwise prepare 0 frames and leave a manifest behind)."""
+    if split_files:  # the files' splits replace the dataset's own; --split then picks one of theirs
+        found = find_jobs(dataset, root, version, None, frame_stride)
+        split_of = read_split_files(split_files)
+        named = [replace(job, split=split_of[job.name]) for job in found if job.name in split_of]
+        jobs = [job for job in named if split is None or job.split == split]
+        left_out = len(found) - len(named)
+    else:
+        jobs, left_out = find_jobs(dataset, root, version, split, frame_stride), 0
+    if not jobs and not split_files:
+        raise ValueError(no_logs_found(dataset, root, version, split))
+    if not jobs:
+        names = ", ".join(f"{name}={path}" for name, path in split_files.items())
+        in_split = f" of split {split}" if split else ""
+        raise ValueError(
+            f"{root}: none of its {len(found)} logs is named in the split files{in_split} ({names})"
+        )
+    return jobs, left_out
+
+
+def manifest_parameters(
+    options: TargetOptions, frame_stride: int, split_files: dict[str, Path] | None
+) -> dict:
+    """The options that make the shards what they are, as the manifest records them."""
+    options_dict = asdict(options)
+    options_dict["bev_range"] = options.bev_range.text
+    parameters = {**options_dict, "frame_stride": frame_stride}
+    if split_files:
+        parameters["split_files"] = {name: str(Path(path).resolve()) for name, path in split_files.items()}
+    return parameters
+
+
+def check_manifest(out: Path, dataset: str, parameters: dict, overwrite: bool) -> None:
+    """Refuse to add to a folder prepared with other options or another schema version (unless
+    `overwrite`): shards made with other options must not be mixed with new ones."""
+    manifest_path = out / "manifest.json"
+    if not manifest_path.is_file() or overwrite:
+        return
+    before = json.loads(manifest_path.read_text())
+    old = {"dataset": before.get("dataset"), **before.get("parameters", {})}
+    new = {"dataset": dataset, **parameters}
+    differing = [key for key in {**old, **new} if key != "split" and old.get(key) != new.get(key)]
+    if differing:
+        changes = ", ".join(
+            f"{option_name(k)} {shown(old.get(k))} (now {shown(new.get(k))})" for k in differing
+        )
+        raise ValueError(
+            f"{out} was prepared with other options: {changes}; pass --overwrite or choose another --out"
+        )
+    if before.get("schema_version") != io.SCHEMA_VERSION:
+        raise ValueError(
+            f"{manifest_path}: schema_version {before.get('schema_version')}, this version writes "
+            f"{io.SCHEMA_VERSION}; pass --overwrite to prepare it again, or choose another --out"
+        )
+
+
+def run_jobs(
+    todo: list[Job], out: Path, options: TargetOptions, frame_stride: int, on_error: str, workers: int,
+    executor: str, address: str | None, advance: Callable,
+) -> list[LogResult]:  # fmt: skip
+    """prepare_log of every job on the chosen executor (pipeline/executor.py), results in job order;
+    advance(n) moves the progress bar by n frames."""
+    work = functools.partial(
+        prepare_log, out=out, options=options, frame_stride=frame_stride, on_error=on_error
+    )
+    if executor == "ray":
+        return run_ray(todo, work, workers, address, lambda job: advance(job.n_frames))
+    if workers <= 1:  # in this process: the bar moves frame by frame
+        return run_local(todo, functools.partial(work, on_frame=advance), 1, lambda job: None)
+    warm_up()  # fork: workers inherit the loaded nuScenes tables instead of reading them again
+    return run_local(todo, work, workers, lambda job: advance(job.n_frames))
+
+
+def append_errors(out: Path, errors: list[dict]) -> None:
+    """The records of the frames and logs that failed, added to out/errors.jsonl (atomically)."""
+    if errors:
+        previous = (out / "errors.jsonl").read_text() if (out / "errors.jsonl").is_file() else ""
+        lines = previous + "".join(json.dumps(e) + "\n" for e in errors)
+        io.write_atomic(out / "errors.jsonl", lambda tmp: tmp.write_text(lines))
+
+
+def summarize(
+    jobs: list[Job], todo: list[Job], left_out: int, results: list[LogResult], seconds: float
+) -> dict:
+    """The run's summary: what `prepare` returns and the manifest's last_run."""
+    frames = sum(r.frames for r in results)
+    return {
+        "logs": len(jobs),
+        "logs_in_no_split_file": left_out,
+        "logs_prepared": len(todo),
+        "logs_already_done": len(jobs) - len(todo),
+        "frames": frames,
+        "frames_skipped": sum(r.skipped for r in results),
+        "paths_per_frame": sum(r.paths for r in results) / max(frames, 1),
+        "pieces_per_frame": sum(r.pieces for r in results) / max(frames, 1),
+        "junctions_per_frame": sum(r.junctions for r in results) / max(frames, 1),
+        "path_cap_hits": sum(r.cap_hits for r in results),
+        "seconds": seconds,
+        "frames_per_second": frames / seconds if seconds > 0 else 0.0,
+        "peak_worker_mib": max((r.peak_mib for r in results), default=0.0),
+    }
+
+
+def write_manifest(
+    out: Path, dataset: str, root: Path, version: str, parameters: dict, split: str | None,
+    options: TargetOptions, summary: dict,
+) -> None:  # fmt: skip
+    io.write_json(
+        out / "manifest.json",
+        {
+            "schema_version": io.SCHEMA_VERSION,
+            "dataset": dataset,
+            "root": str(root),
+            "version": version if dataset == "nuscenes" else None,
+            "parameters": {**parameters, "split": split},
+            "range": {"x_min": options.bev_range.x_min, "x_max": options.bev_range.x_max,
+                      "y_min": options.bev_range.y_min, "y_max": options.bev_range.y_max},
+            "packages": package_versions(),
+            "rows": {table: io.count_rows(out, table) for table in io.TABLES},
+            "last_run": summary,
+        },
+    )  # fmt: skip
 
 
 def prepare(
@@ -344,53 +470,13 @@ def prepare(
     if address and executor != "ray":
         raise ValueError("--address is for --executor ray")
     if executor == "ray":  # before any work: a missing Ray is a one-line error, not a traceback later
-        from pipeline.executor import import_ray
-
         import_ray()
     root, out = Path(root).resolve(), Path(out)
-    if split_files:  # the files' splits replace the dataset's own; --split then picks one of theirs
-        found = find_jobs(dataset, root, version, None, frame_stride)
-        split_of = read_split_files(split_files)
-        named = [replace(job, split=split_of[job.name]) for job in found if job.name in split_of]
-        jobs = [job for job in named if split is None or job.split == split]
-        left_out = len(found) - len(named)
-    else:
-        jobs, left_out = find_jobs(dataset, root, version, split, frame_stride), 0
-    if not jobs and not split_files:
-        raise ValueError(no_logs_found(dataset, root, version, split))
-    if not jobs:
-        names = ", ".join(f"{name}={path}" for name, path in split_files.items())
-        in_split = f" of split {split}" if split else ""
-        raise ValueError(
-            f"{root}: none of its {len(found)} logs is named in the split files{in_split} ({names})"
-        )
-    options_dict = asdict(options)
-    options_dict["bev_range"] = options.bev_range.text
-    parameters = {**options_dict, "frame_stride": frame_stride}
-    if split_files:
-        parameters["split_files"] = {name: str(Path(path).resolve()) for name, path in split_files.items()}
-    manifest_path = out / "manifest.json"
-    if manifest_path.is_file() and not overwrite:
-        # shards made with other options must not be mixed with new ones
-        before = json.loads(manifest_path.read_text())
-        old = {"dataset": before.get("dataset"), **before.get("parameters", {})}
-        new = {"dataset": dataset, **parameters}
-        differing = [key for key in {**old, **new} if key != "split" and old.get(key) != new.get(key)]
-        if differing:
-            changes = ", ".join(
-                f"{option_name(k)} {shown(old.get(k))} (now {shown(new.get(k))})" for k in differing
-            )
-            raise ValueError(
-                f"{out} was prepared with other options: {changes}; pass --overwrite or choose another --out"
-            )
-        if before.get("schema_version") != io.SCHEMA_VERSION:
-            raise ValueError(
-                f"{manifest_path}: schema_version {before.get('schema_version')}, this version writes "
-                f"{io.SCHEMA_VERSION}; pass --overwrite to prepare it again, or choose another --out"
-            )
+    jobs, left_out = select_jobs(dataset, root, version, split, frame_stride, split_files)
+    parameters = manifest_parameters(options, frame_stride, split_files)
+    check_manifest(out, dataset, parameters, overwrite)
     out.mkdir(parents=True, exist_ok=True)
     todo = [j for j in jobs if overwrite or not io.shard_done(out, f"{j.split}__{j.name}")]
-    results: list[LogResult] = []
     start = time.perf_counter()
     columns = [
         TextColumn("prepare {task.description}"),
@@ -400,63 +486,10 @@ def prepare(
     ]
     with Progress(*columns, console=console, transient=False) as progress:
         task = progress.add_task(f"{dataset} frames", total=sum(j.n_frames for j in todo))
-        if executor == "ray":
-            from pipeline.executor import run_ray
-
-            work = functools.partial(
-                prepare_log, out=out, options=options, frame_stride=frame_stride, on_error=on_error
-            )
-            results = run_ray(todo, work, workers, address, lambda job: progress.advance(task, job.n_frames))
-        elif workers <= 1:
-            for job in todo:
-                results.append(
-                    prepare_log(job, out, options, frame_stride, on_error, lambda: progress.advance(task))
-                )
-        else:
-            # fork: workers inherit the loaded nuScenes tables instead of reading them again
-            warm_up()
-            context = multiprocessing.get_context("fork")
-            with context.Pool(workers) as pool:
-                args = [(job, out, options, frame_stride, on_error) for job in todo]
-                for job, result in zip(todo, pool.imap(_work, args)):
-                    results.append(result)
-                    progress.advance(task, job.n_frames)
+        advance = functools.partial(progress.advance, task)
+        results = run_jobs(todo, out, options, frame_stride, on_error, workers, executor, address, advance)
     elapsed = time.perf_counter() - start
-
-    errors = [e for r in results for e in r.errors]
-    if errors:
-        previous = (out / "errors.jsonl").read_text() if (out / "errors.jsonl").is_file() else ""
-        lines = previous + "".join(json.dumps(e) + "\n" for e in errors)
-        io.write_atomic(out / "errors.jsonl", lambda tmp: tmp.write_text(lines))
-    frames = sum(r.frames for r in results)
-    summary = {
-        "logs": len(jobs),
-        "logs_in_no_split_file": left_out,
-        "logs_prepared": len(todo),
-        "logs_already_done": len(jobs) - len(todo),
-        "frames": frames,
-        "frames_skipped": sum(r.skipped for r in results),
-        "paths_per_frame": sum(r.paths for r in results) / max(frames, 1),
-        "pieces_per_frame": sum(r.pieces for r in results) / max(frames, 1),
-        "junctions_per_frame": sum(r.junctions for r in results) / max(frames, 1),
-        "path_cap_hits": sum(r.cap_hits for r in results),
-        "seconds": elapsed,
-        "frames_per_second": frames / elapsed if elapsed > 0 else 0.0,
-        "peak_worker_mib": max((r.peak_mib for r in results), default=0.0),
-    }
-    io.write_json(
-        out / "manifest.json",
-        {
-            "schema_version": io.SCHEMA_VERSION,
-            "dataset": dataset,
-            "root": str(root),
-            "version": version if dataset == "nuscenes" else None,
-            "parameters": {**parameters, "split": split},
-            "range": {"x_min": options.bev_range.x_min, "x_max": options.bev_range.x_max,
-                      "y_min": options.bev_range.y_min, "y_max": options.bev_range.y_max},
-            "packages": package_versions(),
-            "rows": {table: io.count_rows(out, table) for table in io.TABLES},
-            "last_run": summary,
-        },
-    )  # fmt: skip
+    append_errors(out, [e for r in results for e in r.errors])
+    summary = summarize(jobs, todo, left_out, results, elapsed)
+    write_manifest(out, dataset, root, version, parameters, split, options, summary)
     return summary

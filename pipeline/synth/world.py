@@ -30,7 +30,7 @@ import shapely
 
 from pipeline.synth.geometry import Pose, turtle
 from pipeline.synth.ids import uuid_like
-from pipeline.synth.network import Network, Road, WorldLane, arm_distance
+from pipeline.synth.network import Network, Road, Roundabout, WorldLane, arm_distance
 
 # One world per map location: nuScenes has four, AV2 names its cities. Every world drives on the right.
 NUSCENES_MAPS = ("boston-seaport", "singapore-onenorth", "singapore-hollandvillage", "singapore-queenstown")
@@ -156,17 +156,78 @@ class _Parts:
 
 
 def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) -> _Parts | None:
-    """One layout with the main junction at origin, or None when its roads overlap."""
+    """One layout with the main junction at origin, or None when its roads overlap. The features are
+    drawn in this order from `rng`: the same seed gives the same world."""
     net = Network(first_id=first_id)
+    arms, junction, count, ramp_shape = _main_junction(net, rng, origin)
+    drawn = _roundabout(net, rng, arms["roundabout"])
+    if drawn is None:
+        return None
+    ring, roundabout_arms, view = drawn
+    t_centre, cross_roads, t_turns = _t_junction(net, rng, arms["t_junction"])
+    fork_lane, merge_lane, ramp = _exit_ramp(net, arms["ramp"], ramp_shape)
+    reentering, reentering_view = _s_bend(net, rng, arms["t_junction"])
+    curve_arm = arms["curve"]
+    curve = sorted(i for lanes_ in curve_arm.forward + curve_arm.backward for i in lanes_
+                   if net.lanes[i].path.pieces[0].curvature)  # fmt: skip
+    if _overlaps(net):
+        return None
+
+    landmarks = Landmarks(
+        intersection_centre=origin,
+        intersection_arms=count,
+        intersection_connectors=junction,
+        t_junction_centre=(t_centre.x, t_centre.y),
+        t_junction_connectors=t_turns,
+        roundabout_centre=ring.centre,
+        roundabout_radius=ring.radius,
+        ring_lanes=ring.ring,
+        roundabout_entries=ring.entries,
+        roundabout_exits=ring.exits,
+        roundabout_view=view,
+        fork_lane=fork_lane,
+        fork_branches=list(net.lanes[fork_lane].successors),
+        merge_lane=merge_lane,
+        merge_sources=list(net.lanes[merge_lane].predecessors),
+        ramp_lanes=ramp,
+        reentering_lane=reentering,
+        reentering_view=reentering_view,
+        curved_road_lanes=curve,
+    )
+    foci = _route_foci(net, landmarks, arms["roundabout"], arms["t_junction"])
+    kerbs = [(road, -1, "cars") for road in cross_roads + roundabout_arms[:1]]
+    kerbs += [(arms["plain"], -1, "cars")] if "plain" in arms else []
+    kerbs += [(road, 1, "poles") for road in [*arms.values(), *cross_roads]]
+    kerbs += [(arms["t_junction"], 1, "cars")]
+    crossing_roads = [*arms.values(), *cross_roads]
+    roads = [*arms.values(), *cross_roads, *roundabout_arms]
+    return _Parts(net, landmarks, foci, kerbs, crossing_roads, roads)
+
+
+def _lane_count(rng: np.random.Generator) -> int:
+    return int(rng.integers(1, 4))
+
+
+def _lane_width(rng: np.random.Generator) -> float:
+    return float(rng.uniform(3.0, 3.8))
+
+
+@dataclass(frozen=True)
+class _RampShape:
+    """How the exit ramp swings out of its arm's outer lane and back (drawn with the arm, whose middle
+    straight spans it)."""
+
+    radius: float
+    angle: float  # radians, of each of its four arcs
+    straight: float  # metres between its two halves
+
+
+def _main_junction(
+    net: Network, rng: np.random.Generator, origin: tuple[float, float]
+) -> tuple[dict[str, Road], dict[str, list[int]], int, _RampShape]:
+    """The main junction: 4 or 5 arms at irregular angles, each with its role; returns the arms by role,
+    the junction's connectors, the number of arms and the shape of the ramp that the ramp arm carries."""
     ox, oy = origin
-
-    def lanes() -> int:
-        return int(rng.integers(1, 4))
-
-    def width() -> float:
-        return float(rng.uniform(3.0, 3.8))
-
-    # main junction: 4 or 5 arms, at irregular angles, each with its role
     count = int(rng.choice([4, 5]))
     headings = (
         rng.uniform(0, 2 * math.pi)
@@ -176,8 +237,9 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     roles = ["roundabout", "t_junction", "ramp", "curve", "plain"][:count]
     roles = [roles[i] for i in rng.permutation(count)]
     spec = {  # role -> (forward lanes, backward lanes, width): the roundabout takes one lane each way
-        role: (1, 1, width()) if role == "roundabout" else (lanes(), lanes(), width()) for role in roles
-    }
+        role: (1, 1, _lane_width(rng)) if role == "roundabout" else
+        (_lane_count(rng), _lane_count(rng), _lane_width(rng)) for role in roles
+    }  # fmt: skip
     half = [max(spec[r][0], spec[r][1]) * spec[r][2] for r in roles]
     gaps = np.diff(np.append(headings, headings[0] + 2 * math.pi))
     # far enough out that neighbouring arms' kerbs do not meet: a kerb at half width h clears the
@@ -206,11 +268,16 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
         else:
             steps = [("S", rng.uniform(60, 90))]
         arms[role] = net.road(role, start, steps, forward, backward, lane_width)
-    ports = [arms[role].port(True) for role in roles]
-    junction = net.junction("intersection", ports)
+    junction = net.junction("intersection", [arms[role].port(True) for role in roles])
+    return arms, junction, count, _RampShape(ramp_radius, ramp_angle, ramp_straight)
 
-    # the roundabout at the end of its arm: its axis arrives from the junction
-    street = arms["roundabout"]
+
+def _roundabout(
+    net: Network, rng: np.random.Generator, street: Road
+) -> tuple[Roundabout, list[Road], Pose] | None:
+    """The roundabout at the end of the street arm (its axis arrives from the junction) with 3-5 arms of
+    its own; returns it, its arms and the view of an ego arriving on the street, or None when its arms
+    cannot be at least a ring segment of 5 m apart."""
     ring_radius = float(rng.uniform(9.5, 12.0))
     arm_out = arm_distance(ring_radius, ENTRY_RADIUS, street.width / 2)
     street_end = street.reference[-1].end
@@ -242,11 +309,16 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     view = Pose(ring_centre.x, ring_centre.y, street_end.heading).moved(
         -(ring_radius + 6.0), -street.width / 2
     )
+    return ring, roundabout_arms, view
 
-    # the T-junction at the end of its arm, its cross road at 75-105 degrees
-    stem = arms["t_junction"]
+
+def _t_junction(
+    net: Network, rng: np.random.Generator, stem: Road
+) -> tuple[Pose, list[Road], dict[str, list[int]]]:
+    """The T-junction at the end of the stem arm, its cross road at 75-105 degrees; returns its centre,
+    the cross road's two halves and the junction's connectors."""
     stem_end = stem.reference[-1].end
-    cross_lanes, cross_width = int(rng.integers(1, 3)), width()
+    cross_lanes, cross_width = int(rng.integers(1, 3)), _lane_width(rng)
     t_distance = max(stem.half_widths) + cross_lanes * cross_width + 3.0
     t_centre = stem_end.moved(t_distance)
     cross = stem_end.heading + math.radians(rng.uniform(75, 105))
@@ -259,21 +331,30 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
         cross_roads.append(net.road(name, start, [("S", rng.uniform(45, 70))], cross_lanes, cross_lanes,
                                     cross_width))  # fmt: skip
     t_turns = net.junction("t_junction", [stem.port(False)] + [r.port(True) for r in cross_roads])
+    return t_centre, cross_roads, t_turns
 
-    # the exit ramp from the ramp arm's outer forward lane, back after `span`
-    ramp_arm = arms["ramp"]
+
+def _exit_ramp(net: Network, ramp_arm: Road, shape: _RampShape) -> tuple[int, int, list[int]]:
+    """The exit ramp from the ramp arm's outer forward lane, back into it after the arm's middle
+    straight; returns the fork lane, the merge lane and the ramp's lanes."""
     outer = ramp_arm.forward[-1]
     fork_lane, merge_lane = outer[ramp_arm.step_ends[0]], outer[ramp_arm.step_ends[1] + 1]
-    ramp_steps = [("R", ramp_radius, math.degrees(ramp_angle)), ("L", ramp_radius, math.degrees(ramp_angle)),
-                  ("S", ramp_straight), ("L", ramp_radius, math.degrees(ramp_angle)),
-                  ("R", ramp_radius, math.degrees(ramp_angle))]  # fmt: skip
+    degrees = math.degrees(shape.angle)
+    ramp_steps = [("R", shape.radius, degrees), ("L", shape.radius, degrees), ("S", shape.straight),
+                  ("L", shape.radius, degrees), ("R", shape.radius, degrees)]  # fmt: skip
     ramp = net.chain("frontage", turtle(net.lanes[fork_lane].path.end, ramp_steps),
                      left_mark="SOLID_WHITE", right_mark="SOLID_WHITE", width=ramp_arm.width)  # fmt: skip
     net.link(fork_lane, ramp[0])
     net.link(ramp[-1], merge_lane)
+    return fork_lane, merge_lane, ramp
 
-    # the S-bend side lane right of the T-junction arm's outer forward lane: its middle arc starts and
-    # ends `gap` metres right of that lane's centre and bulges `bulge` metres further out
+
+def _s_bend(net: Network, rng: np.random.Generator, stem: Road) -> tuple[int, Pose]:
+    """The S-bend side lane right of the stem arm's outer forward lane: its middle arc starts and ends
+    `gap` metres right of that lane's centre and bulges `bulge` metres further out. Returns the lane of
+    the middle arc (re-entering the range) and the view of an ego in the outer forward lane, level with
+    the bulge's peak."""
+    stem_end = stem.reference[-1].end
     bend_deg = float(rng.uniform(30, 40))
     bulge = float(rng.uniform(3.8, 5.5))
     bend_radius = bulge / (1 - math.cos(math.radians(bend_deg)))
@@ -285,41 +366,20 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     peak = bend[2].at(bend[2].length / 2)[0]
     if rng.random() < 0.5:  # either driving direction
         bend = [piece.reversed() for piece in reversed(bend)]
-    side = net.chain("side_lane", bend, left_mark="SOLID_YELLOW", right_mark="SOLID_WHITE", width=width())
-    reentering = side[2]
-    # the ego in the outer forward lane, level with the bulge's peak
+    side = net.chain("side_lane", bend, left_mark="SOLID_YELLOW", right_mark="SOLID_WHITE",
+                     width=_lane_width(rng))  # fmt: skip
     station = float(
         (peak[:2] - stem.reference[0].start.xy) @ [math.cos(stem_end.heading), math.sin(stem_end.heading)]
     )
-    reentering_view = stem.reference[0].start.moved(station, ego_offset)
+    return side[2], stem.reference[0].start.moved(station, ego_offset)
 
-    curve_arm = arms["curve"]
-    curve = sorted(i for lanes_ in curve_arm.forward + curve_arm.backward for i in lanes_
-                   if net.lanes[i].path.pieces[0].curvature)  # fmt: skip
-    if _overlaps(net):
-        return None
 
-    landmarks = Landmarks(
-        intersection_centre=(ox, oy),
-        intersection_arms=count,
-        intersection_connectors=junction,
-        t_junction_centre=(t_centre.x, t_centre.y),
-        t_junction_connectors=t_turns,
-        roundabout_centre=ring.centre,
-        roundabout_radius=ring.radius,
-        ring_lanes=ring.ring,
-        roundabout_entries=ring.entries,
-        roundabout_exits=ring.exits,
-        roundabout_view=view,
-        fork_lane=fork_lane,
-        fork_branches=list(net.lanes[fork_lane].successors),
-        merge_lane=merge_lane,
-        merge_sources=list(net.lanes[merge_lane].predecessors),
-        ramp_lanes=ramp,
-        reentering_lane=reentering,
-        reentering_view=reentering_view,
-        curved_road_lanes=curve,
-    )
+def _route_foci(
+    net: Network, landmarks: Landmarks, street: Road, stem: Road
+) -> dict[str, list[tuple[int, tuple[float, float]]]]:
+    """Where the routes of each kind that ROUTE_KINDS names start from: (focus lane, focus point)."""
+    lm = landmarks
+    junction, t_turns = lm.intersection_connectors, lm.t_junction_connectors
 
     def middle(lane: int) -> tuple[int, tuple[float, float]]:
         path = net.lanes[lane].path
@@ -338,30 +398,24 @@ def _draw(rng: np.random.Generator, first_id: int, origin: tuple[float, float]) 
     ] or junction["straight"]
 
     # the outer forward lane segment that the S-bend view stands on
+    view, reentering_view = lm.roundabout_view, lm.reentering_view
     view_xy = np.array([reentering_view.x, reentering_view.y])
     ego_lane = min(
         stem.forward[-1], key=lambda i: np.hypot(*(net.lanes[i].centerline()[:, :2] - view_xy).T).min()
     )
-    foci = {  # every kind that ROUTE_KINDS names
+    return {  # every kind that ROUTE_KINDS names
         "roundabout": [(street.forward[0][-1], (view.x, view.y))],
-        "fork": [(ramp[0], tuple(float(v) for v in net.lanes[fork_lane].path.end.xy))],
+        "fork": [(lm.ramp_lanes[0], tuple(float(v) for v in net.lanes[lm.fork_lane].path.end.xy))],
         "s_bend": [(ego_lane, (reentering_view.x, reentering_view.y))],
         "junction_left": [middle(i) for i in junction["left"]],
         "junction_right": [middle(i) for i in junction["right"]],
         "t_junction_turn": [middle(i) for i in t_turns["left"] + t_turns["right"]],
-        "merge": [(merge_lane, tuple(float(v) for v in net.lanes[merge_lane].path.start.xy))],
-        "curve": [middle(i) for i in curve],
+        "merge": [(lm.merge_lane, tuple(float(v) for v in net.lanes[lm.merge_lane].path.start.xy))],
+        "curve": [middle(i) for i in lm.curved_road_lanes],
         "road": [middle(i) for i in inner],
         "junction_straight": [middle(i) for i in straight_from_inner],
-        "roundabout_through": [middle(i) for i in ring.entries],
+        "roundabout_through": [middle(i) for i in lm.roundabout_entries],
     }
-    kerbs = [(road, -1, "cars") for road in cross_roads + roundabout_arms[:1]]
-    kerbs += [(arms["plain"], -1, "cars")] if "plain" in arms else []
-    kerbs += [(road, 1, "poles") for road in [*arms.values(), *cross_roads]]
-    kerbs += [(stem, 1, "cars")]
-    crossing_roads = [*arms.values(), *cross_roads]
-    roads = [*arms.values(), *cross_roads, *roundabout_arms]
-    return _Parts(net, landmarks, foci, kerbs, crossing_roads, roads)
 
 
 def _overlaps(net: Network, clearance: float = 0.5) -> bool:

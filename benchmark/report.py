@@ -820,24 +820,25 @@ class Report:
     references: list[list[tuple[str, list[str], list[list[str]]]]] = field(default_factory=list)
 
 
-def write_report(
-    runs: list[Path], out: Path, roundtrips: list[Path] = (), workers: int = 1, reference: str | None = None,
-    draws: int = bootstrap.DRAWS,
-) -> Report:  # fmt: skip
-    """Write out/report.md and the PNGs it links; returns what was written. `reference="paper"` places
-    the paper's tables beside the measured ones; `draws`: bootstrap draws of the intervals (0: none)."""
-    out = Path(out)
-    bootstrap.check_draws(draws)
-    refs = load_reference(reference) if reference else {}
-    blocks = group_blocks(load_runs(runs))
-    trips = load_roundtrips(list(roundtrips))
-    trip_tables = roundtrip_tables(trips)  # checked before anything is written
-    for block in blocks:
-        for run in block.scored:
-            if draws and run.counts is not None:
-                run.intervals = bootstrap.intervals(run.counts, draws)
-    out.mkdir(parents=True, exist_ok=True)
-    pictures, grids, placed, shown_references = [], {}, set(), []
+@dataclass
+class Sections:
+    """What the section builders share besides the lines they return: where the pictures go, the paper's
+    tables (refs), and what they wrote and placed."""
+
+    out: Path
+    refs: dict[str, ReferenceTable]
+    workers: int
+    pictures: list[Path] = field(default_factory=list)
+    grids: dict[str, tuple[int, int]] = field(default_factory=dict)
+    placed: set[str] = field(default_factory=set)  # labels of the paper's tables shown
+    shown_references: list[list[tuple[str, list[str], list[list[str]]]]] = field(default_factory=list)
+
+    def picture(self, figure, name: str) -> None:
+        self.pictures.append(figures.save_png(figure, self.out / name))
+
+
+def introduction(blocks: list[Block], draws: int, doc: Sections) -> list[str]:
+    """The title, the summary and how to read the tables."""
     md = ["# Lane-graph report", "", summary(blocks, draws), ""]
     md += [
         "Scores are in % (precision P, recall R, F1) of the TOPO and Junction TOPO metrics "
@@ -855,119 +856,198 @@ def write_report(
             "runs' difference (same frames, same draws).",
             "",
         ]
-    if refs:
+    if doc.refs:
         md += [REFERENCE_NOTE, ""]
-    md += [f"Paths are relative to the folder `cli report` ran in (`{shown(out)}` holds this report).", ""]
-    for index, block in enumerate(blocks, 1):
-        slug = f"{index}_{block.dataset}"
-        md += [f"## {block.title}", "", "### Main table (paper Tab. 1)", ""]
-        md += [markdown_table(*main_table(block)), ""]
-        md += [f"- {run.name}: no F1 intervals: {run.no_counts}." for run in block.scored if run.no_counts]
-        md += [""] if any(run.no_counts for run in block.scored) else []
-        beside = main_references(block, refs) if refs else []
-        shown_references.append([])
-        if refs:
-            if block.synthetic:
-                md += [SYNTHETIC_NOTE, ""]
-            elif block.synthetic is None:
-                md += [UNKNOWN_ORIGIN_NOTE, ""]
-            if not beside:
-                where = f"{block.dataset} at range {block.parameters.get('bev_range', '?')}"
-                where += ", prepared with --split-file" if block.parameters.get("split_files") else ""
-                md += [f"No table of the paper matches this block ({where}).", ""]
-        for table, rows in beside:
-            md += reference_section(table, rows, block.dataset)
-            shown_references[-1].append(console_reference(table, rows, block.dataset))
-            placed.add(table.label)
-        md += [FLOOR_NOTE, ""]
-        md += [f"- {note}" for note in floor_notes(block)] + [""]
-        md += [markdown_table(*settings_table(block)), ""]
-        params_text = params_line(block.metric_params) if block.metric_params else "–"
-        data_text = shown(block.data) if block.data else "not found"
+    md += [
+        f"Paths are relative to the folder `cli report` ran in (`{shown(doc.out)}` holds this report).",
+        "",
+    ]
+    return md
+
+
+def main_section(block: Block, beside: list[tuple[ReferenceTable, list[dict]]], doc: Sections) -> list[str]:
+    """A block's heading, main table, the paper's tables beside it, the floor, its settings and data."""
+    refs = doc.refs
+    md = [f"## {block.title}", "", "### Main table (paper Tab. 1)", ""]
+    md += [markdown_table(*main_table(block)), ""]
+    md += [f"- {run.name}: no F1 intervals: {run.no_counts}." for run in block.scored if run.no_counts]
+    md += [""] if any(run.no_counts for run in block.scored) else []
+    doc.shown_references.append([])
+    if refs:
+        if block.synthetic:
+            md += [SYNTHETIC_NOTE, ""]
+        elif block.synthetic is None:
+            md += [UNKNOWN_ORIGIN_NOTE, ""]
+        if not beside:
+            where = f"{block.dataset} at range {block.parameters.get('bev_range', '?')}"
+            where += ", prepared with --split-file" if block.parameters.get("split_files") else ""
+            md += [f"No table of the paper matches this block ({where}).", ""]
+    for table, rows in beside:
+        md += reference_section(table, rows, block.dataset)
+        doc.shown_references[-1].append(console_reference(table, rows, block.dataset))
+        doc.placed.add(table.label)
+    md += [FLOOR_NOTE, ""]
+    md += [f"- {note}" for note in floor_notes(block)] + [""]
+    md += [markdown_table(*settings_table(block)), ""]
+    params_text = params_line(block.metric_params) if block.metric_params else "–"
+    data_text = shown(block.data) if block.data else "not found"
+    md += [
+        f"Data: `{data_text}`, split {block.split}. Metric parameters (every run of it): {params_text}.",
+        "",
+    ]
+    return md
+
+
+def miou_section(block: Block, beside: list[tuple[ReferenceTable, list[dict]]], doc: Sections) -> list[str]:
+    """mIoU (paper Tab. 9), with the paper's tab:iou where the main table has the modeling table beside."""
+    refs = doc.refs
+    md = ["### mIoU (paper Tab. 9)", "", markdown_table(*miou_table(block)), ""]
+    if any(table.label == "tab:modeling" for table, _ in beside) and "tab:iou" in refs:
+        md += reference_section(refs["tab:iou"], refs["tab:iou"].rows_of(block.dataset), block.dataset)
+        doc.placed.add("tab:iou")
+    return md
+
+
+def ablation_sections(block: Block, doc: Sections) -> list[str]:
+    """One table per config field that the block's runs differ in alone, the paper's beside."""
+    md = []
+    for name, members in ablations(block):
+        md += [f"### Ablation: {FIELD_NAMES.get(name, name)} (`{name}`)", ""]
+        md += ["Runs whose saved configs differ in this field alone.", ""]
+        md += [markdown_table(*ablation_table(name, members)), ""]
+        for table in doc.refs.values():
+            if table.field == name:
+                md += reference_section(table, table.rows)
+                doc.placed.add(table.label)
+    return md
+
+
+def junction_sections(block: Block, slug: str, doc: Sections) -> list[str]:
+    """Scores by junction count and the grid of frames, from the runs' predictions (none without)."""
+    gt, predictions, notes = block_graphs(block)
+    md = [f"- {note}" for note in notes]
+    params = MetricParams(**block.metric_params)
+    counts = {f: junction_count(g, params.step) for f, g in gt.items()}
+    if predictions:
+        md += ["### Scores by junction count", ""]
+        md += ["Computed here, not read from metrics.json: each run's predictions.parquet scored with "
+               "the project's metric (parameters above) on the frames of each bucket. "
+               + JUNCTION_DEFINITION, ""]  # fmt: skip
+        md += [markdown_table(*junction_table(gt, predictions, counts, params, doc.workers)), ""]
+        frames = grid_frames(counts, gt)
+        columns = [("ground truth", gt)] + list(predictions.items())
+        labels = [(f, f"{short_id(f)} ({counts[f]} junctions)") for f in frames]
+        grid = f"grid_{slug}.png"
+        doc.picture(figures.frame_grid(labels, columns, Range.parse(params.bev_range)), grid)
+        doc.grids[grid] = (len(frames), len(columns))
+        md += ["### Frames", "", f"![ground truth and predictions]({grid})", ""]
+        rows_text = ", ".join(f"`{f}`" for f in frames)
+        md += [f"Rows: {rows_text}. Columns: ground truth, {', '.join(predictions)}. " + GRID_NOTE, ""]
+    return md
+
+
+def f1_section(block: Block, slug: str, doc: Sections) -> list[str]:
+    """Each run's F1 beside its floor, as bars."""
+    names = [run.name for run in block.scored]
+    values = np.array([[100 * run.score(m, k) for m, k in F1_COLUMNS] for run in block.scored])
+    floors = np.array([[np.nan if run.floor_f1(m, k) is None else 100 * run.floor_f1(m, k)
+                        for m, k in F1_COLUMNS] for run in block.scored])  # fmt: skip
+    labels = [f"{SHORT[m]} {SHORT[k]} F1" for m, k in F1_COLUMNS]
+    bars = f"f1_{slug}.png"
+    doc.picture(figures.f1_bars(names, labels, values, floors), bars)
+    return ["### F1 by run", "", f"![F1 by run]({bars})", ""]
+
+
+def block_sections(index: int, block: Block, doc: Sections) -> list[str]:
+    """Everything of one block (a dataset, range and split): its tables and pictures."""
+    slug = f"{index}_{block.dataset}"
+    beside = main_references(block, doc.refs) if doc.refs else []
+    md = main_section(block, beside, doc)
+    if not block.scored:
+        return md
+    md += miou_section(block, beside, doc)
+    md += ablation_sections(block, doc)
+    if block.data is None:
+        return md + ["The data folder was not found: no scores by junction count and no frame grid.", ""]
+    md += junction_sections(block, slug, doc)
+    return md + f1_section(block, slug, doc)
+
+
+def roundtrip_section(
+    trip_tables: list[tuple[str, list[str], list[list[str]], dict]], doc: Sections
+) -> list[str]:
+    """Post-processing accuracy (paper Tab. 10): the round trips, the paper's beside."""
+    if not trip_tables:
+        return []
+    md = ["## Post-processing accuracy (paper Tab. 10)", ""]
+    md += [
+        "The ground truth through each representation and back (`cli roundtrip`), scored against itself.",
+        "",
+    ]
+    for title, header, rows, params in trip_tables:
         md += [
-            f"Data: `{data_text}`, split {block.split}. Metric parameters (every run of it): {params_text}.",
+            f"### {title}",
+            "",
+            markdown_table(header, rows),
+            "",
+            f"Metric parameters: {params_line(params)}.",
             "",
         ]
-        if not block.scored:
-            continue
-        md += ["### mIoU (paper Tab. 9)", "", markdown_table(*miou_table(block)), ""]
-        if any(table.label == "tab:modeling" for table, _ in beside) and "tab:iou" in refs:
-            md += reference_section(refs["tab:iou"], refs["tab:iou"].rows_of(block.dataset), block.dataset)
-            placed.add("tab:iou")
-        for name, members in ablations(block):
-            md += [f"### Ablation: {FIELD_NAMES.get(name, name)} (`{name}`)", ""]
-            md += ["Runs whose saved configs differ in this field alone.", ""]
-            md += [markdown_table(*ablation_table(name, members)), ""]
-            for table in refs.values():
-                if table.field == name:
-                    md += reference_section(table, table.rows)
-                    placed.add(table.label)
-        if block.data is None:
-            md += ["The data folder was not found: no scores by junction count and no frame grid.", ""]
-            continue
-        gt, predictions, notes = block_graphs(block)
-        md += [f"- {note}" for note in notes]
-        params = MetricParams(**block.metric_params)
-        counts = {f: junction_count(g, params.step) for f, g in gt.items()}
-        if predictions:
-            md += ["### Scores by junction count", ""]
-            md += ["Computed here, not read from metrics.json: each run's predictions.parquet scored with "
-                   "the project's metric (parameters above) on the frames of each bucket. "
-                   + JUNCTION_DEFINITION, ""]  # fmt: skip
-            md += [markdown_table(*junction_table(gt, predictions, counts, params, workers)), ""]
-            frames = grid_frames(counts, gt)
-            columns = [("ground truth", gt)] + list(predictions.items())
-            labels = [(f, f"{short_id(f)} ({counts[f]} junctions)") for f in frames]
-            figure = figures.frame_grid(labels, columns, Range.parse(params.bev_range))
-            grid = f"grid_{slug}.png"
-            pictures.append(figures.save_png(figure, out / grid))
-            grids[grid] = (len(frames), len(columns))
-            md += ["### Frames", "", f"![ground truth and predictions]({grid})", ""]
-            rows_text = ", ".join(f"`{f}`" for f in frames)
-            md += [f"Rows: {rows_text}. Columns: ground truth, {', '.join(predictions)}. " + GRID_NOTE, ""]
-        names = [run.name for run in block.scored]
-        values = np.array([[100 * run.score(m, k) for m, k in F1_COLUMNS] for run in block.scored])
-        floors = np.array([[np.nan if run.floor_f1(m, k) is None else 100 * run.floor_f1(m, k)
-                            for m, k in F1_COLUMNS] for run in block.scored])  # fmt: skip
-        labels = [f"{SHORT[m]} {SHORT[k]} F1" for m, k in F1_COLUMNS]
-        bars = f"f1_{slug}.png"
-        pictures.append(figures.save_png(figures.f1_bars(names, labels, values, floors), out / bars))
-        md += ["### F1 by run", "", f"![F1 by run]({bars})", ""]
-    if trip_tables:
-        md += ["## Post-processing accuracy (paper Tab. 10)", ""]
-        md += [
-            "The ground truth through each representation and back (`cli roundtrip`), scored against itself.",
-            "",
-        ]
-        for title, header, rows, params in trip_tables:
-            md += [
-                f"### {title}",
-                "",
-                markdown_table(header, rows),
-                "",
-                f"Metric parameters: {params_line(params)}.",
-                "",
-            ]
-        if "tab:postproc" in refs:
-            md += reference_section(refs["tab:postproc"], refs["tab:postproc"].rows)
-            placed.add("tab:postproc")
-    unplaced = unplaced_references(refs, placed)
-    if unplaced:
-        md += ["## The paper's tables not shown", ""]
-        md += ["No measured table here matches these; each is shown when one does.", "", *unplaced, ""]
+    if "tab:postproc" in doc.refs:
+        md += reference_section(doc.refs["tab:postproc"], doc.refs["tab:postproc"].rows)
+        doc.placed.add("tab:postproc")
+    return md
+
+
+def unplaced_section(doc: Sections) -> list[str]:
+    """The paper's tables that no measured table matched."""
+    unplaced = unplaced_references(doc.refs, doc.placed)
+    if not unplaced:
+        return []
+    note = "No measured table here matches these; each is shown when one does."
+    return ["## The paper's tables not shown", "", note, "", *unplaced, ""]
+
+
+def loss_section(blocks: list[Block], doc: Sections) -> list[str]:
+    """Every run's training loss by step, from its log.jsonl."""
     curves = {}
     for block in blocks:
         for run in block.runs:
             points = [(e["step"], e["loss"]) for e in run.log if "step" in e and e.get("loss") is not None]
             if points:
                 curves[run.name] = (np.array([p[0] for p in points]), np.array([p[1] for p in points]))
-    md += ["## Training loss", ""]
-    if curves:
-        pictures.append(figures.save_png(figures.loss_curves(curves), out / "loss.png"))
-        md += ["![training loss](loss.png)", "", "From each run's log.jsonl (one point per logged step).", ""]
-    else:
-        md += ["No run has a log.jsonl with losses.", ""]
+    md = ["## Training loss", ""]
+    if not curves:
+        return md + ["No run has a log.jsonl with losses.", ""]
+    doc.picture(figures.loss_curves(curves), "loss.png")
+    return md + ["![training loss](loss.png)", "", "From each run's log.jsonl (one point per logged step).",
+                 ""]  # fmt: skip
+
+
+def write_report(
+    runs: list[Path], out: Path, roundtrips: list[Path] = (), workers: int = 1, reference: str | None = None,
+    draws: int = bootstrap.DRAWS,
+) -> Report:  # fmt: skip
+    """Write out/report.md and the PNGs it links; returns what was written. `reference="paper"` places
+    the paper's tables beside the measured ones; `draws`: bootstrap draws of the intervals (0: none)."""
+    out = Path(out)
+    bootstrap.check_draws(draws)
+    refs = load_reference(reference) if reference else {}
+    blocks = group_blocks(load_runs(runs))
+    trip_tables = roundtrip_tables(load_roundtrips(list(roundtrips)))  # checked before anything is written
+    for block in blocks:
+        for run in block.scored:
+            if draws and run.counts is not None:
+                run.intervals = bootstrap.intervals(run.counts, draws)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = Sections(out, refs, workers)
+    md = introduction(blocks, draws, doc)
+    for index, block in enumerate(blocks, 1):
+        md += block_sections(index, block, doc)
+    md += roundtrip_section(trip_tables, doc)
+    md += unplaced_section(doc)
+    md += loss_section(blocks, doc)
     text = "\n".join(md).rstrip() + "\n"
     path = out / "report.md"
     write_atomic(path, lambda tmp: tmp.write_text(text))
-    return Report(path, blocks, pictures, grids, shown_references)
+    return Report(path, blocks, doc.pictures, doc.grids, doc.shown_references)

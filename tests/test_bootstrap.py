@@ -9,6 +9,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from test_score import FORK, LANE
 from typer.testing import CliRunner
 
 from benchmark import bootstrap
@@ -18,13 +19,6 @@ from cli import app
 from pipeline.io import SCHEMAS
 from pipeline.lane_graph import LaneGraph
 
-LANE = LaneGraph(np.array([0, 0], np.float32), np.array([0, 3], np.float32), np.array([0]), np.array([1]))
-FORK = LaneGraph(
-    np.array([0, 0, 0, 2.25], np.float32),
-    np.array([0, 3, 6, 6], np.float32),
-    np.array([0, 1, 1], np.int32),
-    np.array([1, 2, 3], np.int32),
-)
 MERGE = LaneGraph(
     np.array([-2.25, 0, 0, 0], np.float32),
     np.array([0, 0, 3, 6], np.float32),

@@ -196,8 +196,7 @@ def prepare(
       cli prepare --dataset av2 --root data/av2/sensor --out prepared/av2 --workers 8
       cli prepare --dataset nuscenes --root data/nuscenes --version v1.0-mini --out prepared/mini
     """
-    from rich.table import Table
-
+    from benchmark.tables import prepare_table
     from pipeline.geometry import Range
     from pipeline.prepare import prepare as run_prepare
     from pipeline.targets import TargetOptions
@@ -217,14 +216,8 @@ def prepare(
             frame_stride=frame_stride, on_error=on_error, overwrite=overwrite, split_files=split_files,
             executor=executor, address=address,
         )  # fmt: skip
-    table = Table("quantity", "value")
-    keys = ("frames", "frames_skipped", "paths_per_frame", "pieces_per_frame", "junctions_per_frame",
-            "path_cap_hits", "logs_already_done", "logs_in_no_split_file", "frames_per_second")  # fmt: skip
-    for key in keys:
-        value = summary[key]
-        table.add_row(key.replace("_", " "), f"{value:.2f}" if isinstance(value, float) else str(value))
     wrote = [out] + ([out / "errors.jsonl"] if summary["frames_skipped"] else [])
-    finish(summary, [(f"prepared {dataset} from {root}", table)], wrote, as_json)
+    finish(summary, [(f"prepared {dataset} from {root}", prepare_table(summary))], wrote, as_json)
 
 
 @app.command(short_help="Train a baseline: LaneGAP, MapTR, STSU or HDMapNet")
@@ -303,14 +296,11 @@ def train(
         summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite)
     if not as_json and os.environ.get("RANK", "0") != "0":
         return  # under torchrun, rank 0 reports
-    from rich.table import Table
+    from benchmark.tables import train_table
 
-    table = Table("steps", "final loss", "train seconds", "steps/s")
-    table.add_row(str(summary["steps"]), f"{summary['final_loss']:.4f}", f"{summary['train_seconds']:.1f}",
-                  f"{summary['steps_per_s']:.2f}")  # fmt: skip
     heading = f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {data}"
     wrote = [out / name for name in ("config.json", "run.json", "checkpoint.pt", "log.jsonl")]
-    finish(summary, [(heading, table)], wrote, as_json)
+    finish(summary, [(heading, train_table(summary))], wrote, as_json)
 
 
 @app.command("eval", short_help="Predict a split with a trained run and score it")
@@ -341,9 +331,9 @@ def eval_(
       cli eval --run runs/lanegap --data prepared/other --device cpu --no-floor --json
     """
     import torch
-    from rich.table import Table
 
     from baselines.evaluate import evaluate
+    from benchmark.tables import eval_table
 
     with reported_errors():
         if device == "cuda" and not torch.cuda.is_available():
@@ -353,60 +343,12 @@ def eval_(
         if not (run / "config.json").is_file():
             raise ValueError(f"--run {run}: no config.json (expected a run folder written by cli train)")
         metrics = evaluate(run, data, split, device, floor=floor, bootstrap=bootstrap)
-    blind, drawn = metrics.get("floor"), metrics.get("bootstrap")
-    table = Table("metric", "model")
-    if drawn:
-        table.add_column("95 % interval")
-    for title in ("other log's sensors", "constant prior", "floor", "margin") if blind else ():
-        table.add_column(title)
-
-    def cell(value: float | None) -> str:
-        return "-" if value is None else f"{value:.3f}"
-
-    for mode in ("directed", "undirected"):
-        for name, metric in (("TOPO", "topo"), ("Junction TOPO", "junction_topo")):
-            row = [f"{mode} {name} F1", cell(metrics[mode][metric]["f1"])]
-            row += ["{:.3f}-{:.3f}".format(*metrics[mode][metric]["f1_ci"])] if drawn else []
-            if blind:
-                baselines = (blind["other_log_sensors"], blind["constant_prior"])
-                row += [cell(b[mode][metric]["f1"] if b else None) for b in baselines]
-                row += [cell(blind[key][mode][metric] if blind[key] else None) for key in ("f1", "margin")]
-            table.add_row(*row)
-    for name in ("precision", "recall"):
-        table.add_row(f"directed TOPO {name}", cell(metrics["directed"]["topo"][name]))
-    for name in ("model", "modeling", "params", "gflops", "fps_net", "fps", "postprocess_ms", "device"):
-        value = metrics[name]
-        table.add_row(name, f"{value:.2f}" if isinstance(value, float) else str(value))
-    notes = []
-    if blind and blind["constant_prior"]:
-        prior = blind["constant_prior"]
-        notes.append(f"constant prior: the ground truth of {prior['frame_id']} ({prior['split']} split)")
-    notes += [f"floor without {name}: {reason}" for name, reason in (blind or {}).get("absent", {}).items()]
+    table, notes = eval_table(metrics)
     heading = f"{run} on {metrics['split']} of {metrics['data']}: {metrics['frames']} frames"
     names = ("predictions.parquet", "frame_counts.parquet", "metrics.json")
     finish(
         metrics, [(heading, table)], [run / name for name in names if (run / name).is_file()], as_json, notes
     )
-
-
-def score_table(result: dict):
-    """A score result as a table of P / R / F1 (and its bootstrap interval) and mIoU, with its notes."""
-    from rich.table import Table
-
-    drawn = result.get("bootstrap")
-    table = Table(*(("metric", "precision", "recall", "F1") + (("F1 interval",) if drawn else ())))
-    for mode in ("directed", "undirected"):
-        for name, metric in (("TOPO", "topo"), ("Junction TOPO", "junction_topo")):
-            values = result[mode][metric]
-            cells = [f"{values[k]:.3f}" for k in ("precision", "recall", "f1")]
-            cells += ["{:.3f}-{:.3f}".format(*values["f1_ci"])] if drawn else []
-            table.add_row(f"{mode} {name}", *cells)
-    table.add_row("mIoU", "", "", f"{result['miou']:.3f}")
-    notes = [f"metric_version {result['metric_version']}"]
-    if drawn:
-        notes.append(f"F1 interval: the 95 % interval of a bootstrap of {drawn['draws']} draws over the "
-                     f"frames (seed {drawn['seed']})")  # fmt: skip
-    return table, notes
 
 
 @app.command(short_help="Score predicted lane graphs: TOPO, Junction TOPO, mIoU")
@@ -456,6 +398,7 @@ def score(
       cli score --pred my_predictions.parquet --gt prepared/av2 --split val --out scores.json --json
     """
     from benchmark.score import score as run_score
+    from benchmark.tables import score_table
 
     params = dict(step=step, match_radius=match_radius, reach_radius=reach_radius, matching=matching)
     if range_:
@@ -495,6 +438,7 @@ def roundtrip(
       cli roundtrip --data prepared/av2 --via pixel --frame-stride 10 --workers 0
     """
     from benchmark.roundtrip import roundtrip as run_roundtrip
+    from benchmark.tables import score_table
 
     with reported_errors():
         result = run_roundtrip(data, via, out, merge_radius, workers, frame_stride)
@@ -538,30 +482,13 @@ def report(
       cli report --runs runs --out report
       cli report --runs runs/lanegap --runs runs/maptr --roundtrip rt_path.json --reference paper --out report
     """
-    from rich.table import Table
-
-    from benchmark.report import main_table, write_report
+    from benchmark.report import write_report
+    from benchmark.tables import report_tables
 
     with reported_errors():
         result = write_report(runs, out, roundtrip, workers, reference=reference, draws=bootstrap)
 
-    def plain(cell: str) -> str:  # markdown bold and code quotes off
-        return cell.replace("`", "").removeprefix("**").removesuffix("**")
-
-    shown, tables = [], []
-    for block, references in zip(result.blocks, result.references):
-        for title, header, rows in [(block.title, *main_table(block)), *references]:
-            keep = [
-                i for i, name in enumerate(header) if i < 2 or name.endswith("F1") or name.startswith("FPS")
-            ]
-            table = Table(*(header[i] for i in keep))
-            for row in rows:
-                table.add_row(*(f"[bold]{plain(row[i])}[/bold]" if row[i].startswith("**") else plain(row[i])
-                                for i in keep))  # fmt: skip
-            shown.append((plain(title), table))
-            tables.append(
-                {"title": plain(title), "header": header, "rows": [list(map(plain, r)) for r in rows]}
-            )
+    shown, tables = report_tables(result)
     summary = {"report": str(result.path), "pictures": [str(p) for p in result.pictures], "tables": tables}
     finish(summary, shown, [result.path], as_json, [f"{len(result.pictures)} pictures beside it"])
 

@@ -1,0 +1,118 @@
+"""The rich tables that the commands of cli.py print, one function per command, from the plain results
+(dicts, the report) those commands get; with the notes that go under a table."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from rich.table import Table
+
+if TYPE_CHECKING:
+    from benchmark.report import Report
+
+MODES = ("directed", "undirected")
+METRICS = (("TOPO", "topo"), ("Junction TOPO", "junction_topo"))  # (shown name, result key)
+
+
+def number(value) -> str:
+    """A float with two decimals, anything else as it is."""
+    return f"{value:.2f}" if isinstance(value, float) else str(value)
+
+
+def prepare_table(summary: dict) -> Table:
+    """`cli prepare`'s summary: frames, the per-frame counts and the speed."""
+    table = Table("quantity", "value")
+    keys = ("frames", "frames_skipped", "paths_per_frame", "pieces_per_frame", "junctions_per_frame",
+            "path_cap_hits", "logs_already_done", "logs_in_no_split_file", "frames_per_second")  # fmt: skip
+    for key in keys:
+        table.add_row(key.replace("_", " "), number(summary[key]))
+    return table
+
+
+def train_table(summary: dict) -> Table:
+    """`cli train`'s summary: steps, final loss and speed."""
+    table = Table("steps", "final loss", "train seconds", "steps/s")
+    table.add_row(str(summary["steps"]), f"{summary['final_loss']:.4f}", f"{summary['train_seconds']:.1f}",
+                  f"{summary['steps_per_s']:.2f}")  # fmt: skip
+    return table
+
+
+def cell(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
+def eval_table(metrics: dict) -> tuple[Table, list[str]]:
+    """`cli eval`'s metrics: each F1 (with its interval, and the sensor-blind floor and margin when
+    scored), directed TOPO precision and recall, the model's size and speed; with the floor's notes."""
+    blind, drawn = metrics.get("floor"), metrics.get("bootstrap")
+    table = Table("metric", "model")
+    if drawn:
+        table.add_column("95 % interval")
+    for title in ("other log's sensors", "constant prior", "floor", "margin") if blind else ():
+        table.add_column(title)
+    for mode in MODES:
+        for name, metric in METRICS:
+            row = [f"{mode} {name} F1", cell(metrics[mode][metric]["f1"])]
+            row += ["{:.3f}-{:.3f}".format(*metrics[mode][metric]["f1_ci"])] if drawn else []
+            if blind:
+                baselines = (blind["other_log_sensors"], blind["constant_prior"])
+                row += [cell(b[mode][metric]["f1"] if b else None) for b in baselines]
+                row += [cell(blind[key][mode][metric] if blind[key] else None) for key in ("f1", "margin")]
+            table.add_row(*row)
+    for name in ("precision", "recall"):
+        table.add_row(f"directed TOPO {name}", cell(metrics["directed"]["topo"][name]))
+    for name in ("model", "modeling", "params", "gflops", "fps_net", "fps", "postprocess_ms", "device"):
+        table.add_row(name, number(metrics[name]))
+    notes = []
+    if blind and blind["constant_prior"]:
+        prior = blind["constant_prior"]
+        notes.append(f"constant prior: the ground truth of {prior['frame_id']} ({prior['split']} split)")
+    notes += [f"floor without {name}: {reason}" for name, reason in (blind or {}).get("absent", {}).items()]
+    return table, notes
+
+
+def score_table(result: dict) -> tuple[Table, list[str]]:
+    """A score result (`cli score`, `cli roundtrip`) as P / R / F1 (and its bootstrap interval) and mIoU,
+    with its notes."""
+    drawn = result.get("bootstrap")
+    table = Table(*(("metric", "precision", "recall", "F1") + (("F1 interval",) if drawn else ())))
+    for mode in MODES:
+        for name, metric in METRICS:
+            values = result[mode][metric]
+            cells = [f"{values[k]:.3f}" for k in ("precision", "recall", "f1")]
+            cells += ["{:.3f}-{:.3f}".format(*values["f1_ci"])] if drawn else []
+            table.add_row(f"{mode} {name}", *cells)
+    table.add_row("mIoU", "", "", f"{result['miou']:.3f}")
+    notes = [f"metric_version {result['metric_version']}"]
+    if drawn:
+        notes.append(f"F1 interval: the 95 % interval of a bootstrap of {drawn['draws']} draws over the "
+                     f"frames (seed {drawn['seed']})")  # fmt: skip
+    return table, notes
+
+
+def plain(cell: str) -> str:
+    """A markdown cell without its bold and code quotes."""
+    return cell.replace("`", "").removeprefix("**").removesuffix("**")
+
+
+def report_tables(result: Report) -> tuple[list[tuple[str, Table]], list[dict]]:
+    """`cli report`'s main tables (each block's, and the paper's beside it) as (heading, table) pairs with
+    the run, method, F1 and FPS columns (bold where report.md has it), and as plain dicts with every
+    column for --json."""
+    from benchmark.report import main_table
+
+    shown, tables = [], []
+    for block, references in zip(result.blocks, result.references):
+        for title, header, rows in [(block.title, *main_table(block)), *references]:
+            keep = [
+                i for i, name in enumerate(header) if i < 2 or name.endswith("F1") or name.startswith("FPS")
+            ]
+            table = Table(*(header[i] for i in keep))
+            for row in rows:
+                table.add_row(*(f"[bold]{plain(row[i])}[/bold]" if row[i].startswith("**") else plain(row[i])
+                                for i in keep))  # fmt: skip
+            shown.append((plain(title), table))
+            tables.append(
+                {"title": plain(title), "header": header, "rows": [list(map(plain, r)) for r in rows]}
+            )
+    return shown, tables

@@ -170,7 +170,8 @@ def main() -> None:
     columns = ("topo f1", "junction_topo f1", "topo precision", "topo recall")
     for column in ("split", "threshold", *columns):
         table.add_column(column.replace("junction_topo", "Junction TOPO").replace("topo", "TOPO"))
-    for row in score_oracle(model, config, splits, args.data, (0.4, 0.5, 0.6)):
+    thresholds = sorted({0.4, 0.5, 0.6, config.decoder.score_threshold})  # and the preset's own
+    for row in score_oracle(model, config, splits, args.data, thresholds):
         table.add_row(row["split"], f"{row['threshold']}", *(f"{row[c]:.3f}" for c in columns))
     Console().print(table)
 

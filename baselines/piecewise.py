@@ -23,7 +23,7 @@ from baselines.encoder import BEVEncoder, SensorBatch
 from baselines.fine_bev import fine_losses
 from baselines.matcher import hungarian_match
 from baselines.query_decoder import QueryDecoder
-from benchmark.piece2graph import piece2graph
+from benchmark.piece2graph import piece2graph, suppress_duplicates
 from pipeline.lane_graph import LaneGraph
 
 
@@ -183,27 +183,29 @@ def piece_needs(config: Config) -> frozenset[str]:
 
 
 class PiecePostProcess:
-    """Outputs -> one lane graph per frame: the pieces scoring above the score threshold, in metres, the
-    links i -> j among them whose association probability passes the link threshold, through Piece2Graph
-    (which joins linked ends at their mean)."""
+    """Outputs -> one lane graph per frame: the pieces scoring above the score threshold, in metres, less
+    those that duplicate a higher-scoring one (with a duplicate radius), and the links i -> j among them
+    whose association probability passes the link threshold, through Piece2Graph (which joins linked
+    ends at their mean)."""
 
     def __init__(self, config: Config):
-        head = config.decoder
-        self.encoder, self.threshold, self.link_threshold = (
-            config.encoder,
-            head.score_threshold,
-            head.link_threshold,
-        )
+        self.encoder, self.head = config.encoder, config.decoder
 
     @torch.no_grad()
     def __call__(self, outputs: dict[str, torch.Tensor]) -> list[LaneGraph]:
+        head = self.head
         scores = outputs["logits"][-1].float().sigmoid().cpu()
         points = outputs["points"][-1].float().cpu()
         links = outputs["links"].float().sigmoid().cpu()
         graphs = []
         for frame_scores, frame_points, frame_links in zip(scores, points, links, strict=True):
-            keep = (frame_scores > self.threshold).nonzero().squeeze(1)
+            keep = (frame_scores > head.score_threshold).nonzero().squeeze(1)
             pieces = [self.encoder.polyline_to_metres(p.numpy()) for p in frame_points[keep]]
-            pairs = (frame_links[keep][:, keep] > self.link_threshold).nonzero().numpy()
+            distinct = suppress_duplicates(
+                pieces, frame_scores[keep].numpy(), head.duplicate_radius, head.duplicate_overlap
+            )
+            keep = keep[torch.from_numpy(distinct)]
+            pieces = [pieces[i] for i in distinct]
+            pairs = (frame_links[keep][:, keep] > head.link_threshold).nonzero().numpy()
             graphs.append(piece2graph(pieces, pairs))
         return graphs

@@ -8,6 +8,9 @@
    vertex at their mean: the joint moves to the mean, as STSU and CGNet do.
 4. Self-loops and repeated edges are dropped.
 On ground-truth pieces, linked endpoints are the same vertex, so the graph comes back exactly.
+
+`suppress_duplicates` is an optional step before it for predicted pieces (not STSU's): a piece that
+mostly lies on a higher-scoring one, either way round, is dropped, as detectors' non-maximum suppression.
 """
 
 from __future__ import annotations
@@ -17,8 +20,37 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial.distance import cdist
 
 from pipeline.lane_graph import LaneGraph
+
+
+def suppress_duplicates(
+    pieces: Sequence[np.ndarray], scores: np.ndarray, radius: float, overlap: float
+) -> np.ndarray:
+    """pieces: (n_i, 2) polylines in metres, scores (P,) -> the sorted indices of the pieces kept.
+
+    Greedy in decreasing score: a piece is dropped when at least `overlap` of its points lie within
+    `radius` of a kept piece's points. Direction is ignored: a short training leaves pairs of queries
+    on one lane, driving it both ways (docs/EXPERIMENTS.md, 2026-12-04). radius 0 keeps every piece; a
+    piece without points is dropped."""
+    if radius <= 0:
+        return np.arange(len(pieces))
+    candidates = np.array([i for i, piece in enumerate(pieces) if len(piece)], np.int64)
+    if len(candidates) == 0:
+        return candidates
+    chains = [np.asarray(pieces[i], np.float64).reshape(-1, 2) for i in candidates]
+    sizes = np.array([len(chain) for chain in chains])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    points = np.concatenate(chains)
+    # near[i, b]: point i lies within radius of piece b; share[a, b]: the fraction of a's points that do
+    near = np.minimum.reduceat(cdist(points, points), starts, axis=1) <= radius
+    share = np.add.reduceat(near, starts, axis=0) / sizes[:, None]
+    kept: list[int] = []
+    for piece in np.argsort(-np.asarray(scores, np.float64)[candidates], kind="stable"):
+        if not kept or share[piece, kept].max() < overlap:
+            kept.append(int(piece))
+    return candidates[np.sort(kept)]
 
 
 def piece2graph(

@@ -254,6 +254,8 @@ def test_oracle_through_to_graphs_is_piece2graph_of_the_prepared_pieces(synth_pr
     scores = {}
     for model in MODELS:
         config = resolve_config("tiny", model=model)
+        # the pieces as they are: duplicate suppression drops true pieces that lie close together
+        config.decoder.duplicate_radius = 0.0
         crop = Range.parse(default_range(data))
         config.encoder.x_range, config.encoder.y_range = (crop.x_min, crop.x_max), (crop.y_min, crop.y_max)
         pieces, links = prepared_pieces(data, config)
@@ -290,6 +292,31 @@ def test_oracle_through_to_graphs_is_piece2graph_of_the_prepared_pieces(synth_pr
     for model in MODELS:
         for kind in ("directed", "undirected"):
             assert 0.8 < f1[model][kind][0] < 1.0 and 0.85 < f1[model][kind][1] <= 1.0, (model, f1)
+
+
+def test_post_processing_drops_duplicates_and_their_links():
+    config = small_config("maptr")
+    config.decoder.score_threshold, config.decoder.link_threshold = 0.5, 0.5
+    config.decoder.duplicate_radius = 0.5  # metres; RANGE is 6 x 12 m, the reversed lane 0.3 m off
+    lane = piece((0.5, 0.95), (0.5, 0.5))
+    successor = piece((0.5, 0.5), (0.5, 0.05))
+    pieces = np.stack([lane[::-1] + [0.05, 0], lane, successor, successor + [0.9, 0]])  # 0: lane reversed
+    scores = torch.tensor([0.8, 0.9, 0.9, 0.2])  # 3: below the score threshold
+    links = torch.full((4, 4), 0.1)
+    links[1, 2] = links[0, 2] = links[2, 3] = 0.9
+    outputs = {
+        "logits": torch.logit(scores)[None, None],
+        "points": torch.from_numpy(pieces)[None, None],
+        "links": torch.logit(links)[None],
+    }
+    graph = build(config).to_graphs(outputs)[0]
+    expected = piece2graph(list(config.encoder.unit_to_metres(pieces[[1, 2]].astype(np.float64))), [(0, 1)])
+    for name in ("x", "y", "src", "dst"):
+        assert np.array_equal(getattr(graph, name), getattr(expected, name))
+    config.decoder.duplicate_radius = 0.0  # off: the reversed lane stays, linked to the successor too
+    graph = build(config).to_graphs(outputs)[0]
+    # three chains; the ends of both lanes and the successor's start are one vertex
+    assert len(graph.x) == 3 * N - 2 and len(graph.src) == 3 * (N - 1)
 
 
 def test_heads_are_lanegap_sized():

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from benchmark.metrics import MetricParams, densify, score_graphs
 from benchmark.path2graph import path2graph
-from benchmark.piece2graph import piece2graph
+from benchmark.piece2graph import piece2graph, suppress_duplicates
 from benchmark.pixel2graph import pixel2graph
 from benchmark.roundtrip import roundtrip
 from pipeline.geometry import Range
@@ -111,6 +111,29 @@ def test_piece_and_link_thresholds():
     low_piece = piece2graph(pieces, links, piece_scores=np.array([1.0, 1.0, 0.1]), piece_threshold=0.5)
     assert (len(low_piece.x), len(low_piece.src)) == (3, 2)
     assert len(piece2graph(pieces, links, piece_scores=np.zeros(3)).x) == 0
+
+
+LANE = np.stack([np.zeros(21), np.linspace(-20.0, 20.0, 21)], 1)  # 40 m along y, a point every 2 m
+
+
+def test_duplicates_either_way_round_give_way_to_the_higher_score():
+    reversed_copy = LANE[::-1] + [0.5, 0]  # the same lane driven the wrong way, 0.5 m off
+    next_lane = LANE + [3.5, 0]  # a lane width away
+    tail = LANE[15:] - [1.0, 0]  # a quarter of the lane's length, lying on it
+    pieces, scores = [tail, reversed_copy, LANE, next_lane], np.array([0.95, 0.8, 0.9, 0.7])
+    assert suppress_duplicates(pieces, scores, 3.0, 0.5).tolist() == [0, 2, 3]
+    # 7 of the lane's 21 points lie within 3 m of the tail: under the overlap, both stay
+    assert suppress_duplicates([tail, LANE], np.array([0.95, 0.9]), 3.0, 0.5).tolist() == [0, 1]
+    assert suppress_duplicates([tail, LANE], np.array([0.95, 0.9]), 3.0, 0.25).tolist() == [0]
+    assert suppress_duplicates(pieces, scores, 4.0, 0.5).tolist() == [0, 2]  # the next lane too
+    assert suppress_duplicates(pieces, scores, 0.0, 0.5).tolist() == [0, 1, 2, 3]  # off
+
+
+def test_duplicate_suppression_edge_cases():
+    assert suppress_duplicates([], np.zeros(0), 3.0, 0.5).tolist() == []
+    assert suppress_duplicates([LANE, np.zeros((0, 2))], np.array([0.5, 0.9]), 3.0, 0.5).tolist() == [0]
+    # equal scores: the first piece stays
+    assert suppress_duplicates([LANE, LANE.copy()], np.array([0.5, 0.5]), 3.0, 0.5).tolist() == [0]
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -1,5 +1,6 @@
 """What every model module shares: the `Built` record that its `build(config)` returns, the lookup of
-its head config by preset, and the settings that the query models' heads (LaneGAP, MapTR, STSU) share."""
+its head config by preset, the settings that the query models' heads (LaneGAP, MapTR, STSU) share, and
+those that the piece-wise ones (MapTR, STSU) share."""
 
 from __future__ import annotations
 
@@ -45,3 +46,19 @@ class QueryHeadConfig:
     focal_alpha: float = 0.25
     focal_gamma: float = 2.0
     score_threshold: float = 0.4  # instances kept at inference
+
+
+@dataclass
+class PieceHeadConfig(QueryHeadConfig):
+    """What MapTR's and STSU's heads share beyond the query decoder: the pieces, their links and the
+    post-processing's duplicate suppression."""
+
+    num_pieces: int = 100  # instance queries: frames hold more pieces than paths (pieces end at junctions)
+    piece_points: int = 20  # points per piece (MapTR's 20; the prepared targets are resampled to it)
+    link_weight: float = 1.0
+    max_link_pos_weight: float = 50.0  # the association loss's positive weight is clamped to this
+    link_threshold: float = 0.5  # association probability above which i -> j is a link
+    # 0: off (the papers'); r: a piece with `duplicate_overlap` of its points within r metres of a
+    # higher-scoring piece is dropped before Piece2Graph (benchmark/piece2graph.py suppress_duplicates)
+    duplicate_radius: float = 0.0
+    duplicate_overlap: float = 0.5

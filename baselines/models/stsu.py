@@ -19,21 +19,16 @@ import torch
 
 from baselines.blocks import bernstein_basis, bernstein_matrix
 from baselines.config import Config
-from baselines.models.base import Built, QueryHeadConfig, preset_head
+from baselines.models.base import Built, PieceHeadConfig, preset_head
 from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
 
 
 @dataclass
-class STSUConfig(QueryHeadConfig):
-    """The query models' shared decoder settings (QueryHeadConfig; point_weight weighs the L1 of the
-    control points) and STSU's own."""
+class STSUConfig(PieceHeadConfig):
+    """The piece-wise models' shared settings (PieceHeadConfig; point_weight weighs the L1 of the control
+    points, piece_points are the fitted pieces' points and the curves' samples) and STSU's own."""
 
-    num_pieces: int = 100  # instance queries
-    piece_points: int = 20  # the prepared pieces' points (fitted) and the curves' samples (post-processing)
     bezier_points: int = 4  # control points per piece (STSU: a cubic)
-    link_weight: float = 1.0
-    max_link_pos_weight: float = 50.0  # the association loss's positive weight is clamped to this
-    link_threshold: float = 0.5  # association probability above which i -> j is a link
 
 
 # Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP within
@@ -48,10 +43,17 @@ def paper_head() -> STSUConfig:
 
 def tiny_head() -> STSUConfig:
     """1,180,398 parameters with the tiny encoder (camera); LaneGAP's tiny layers and widths and its fine
-    BEV level (0.6 m cells, without which it barely learns in the CPU budget). Score threshold 0.7, chosen
-    on the learning check's training frames: its limit is precision (docs/EXPERIMENTS.md)."""
+    BEV level (0.6 m cells, without which it barely learns in the CPU budget), and MapTR's duplicate
+    suppression within 3 m and score threshold 0.6 (docs/EXPERIMENTS.md, 2026-12-04)."""
     return STSUConfig(
-        num_pieces=40, layers=3, heads=4, ffn_channels=128, dropout=0.0, score_threshold=0.7, fine_scale=2.5
+        num_pieces=40,
+        layers=3,
+        heads=4,
+        ffn_channels=128,
+        dropout=0.0,
+        score_threshold=0.6,
+        fine_scale=2.5,
+        duplicate_radius=3.0,
     )
 
 

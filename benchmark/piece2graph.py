@@ -31,9 +31,9 @@ def suppress_duplicates(
     """pieces: (n_i, 2) polylines in metres, scores (P,) -> the sorted indices of the pieces kept.
 
     Greedy in decreasing score: a piece is dropped when at least `overlap` of its points lie within
-    `radius` of a kept piece's points. Direction is ignored: a short training leaves pairs of queries
-    on one lane, driving it both ways (docs/EXPERIMENTS.md, 2026-12-04). radius 0 keeps every piece; a
-    piece without points is dropped."""
+    `radius` of a kept piece's points. Direction is ignored: of the copies that a short training leaves
+    on one lane, about half drive it the wrong way (docs/EXPERIMENTS.md, 2026-12-04). radius 0 keeps
+    every piece; a piece without points is dropped."""
     if radius <= 0:
         return np.arange(len(pieces))
     candidates = np.array([i for i, piece in enumerate(pieces) if len(piece)], np.int64)

@@ -37,9 +37,9 @@ def paper_head() -> MapTRConfig:
 def tiny_head() -> MapTRConfig:
     """1,127,566 parameters with the tiny encoder (camera); the layers and widths of LaneGAP's tiny head,
     and its fine BEV level (0.6 m cells, without which it barely learns in the CPU budget), 40 queries for
-    at most 29 pieces a frame in the synthetic data. 880 steps leave pairs of queries on one lane, one
-    of them driving it the wrong way: duplicates are suppressed within 3 m, and the score threshold is
-    0.6, both chosen on the learning check's training frames (docs/EXPERIMENTS.md, 2026-12-04)."""
+    at most 29 pieces a frame in the synthetic data. 880 steps leave several queries on some lanes, half
+    of the copies driving it the wrong way: duplicates are suppressed within 3 m, and the score threshold
+    is 0.6, both chosen on the learning check's training frames (docs/EXPERIMENTS.md, 2026-12-04)."""
     return MapTRConfig(
         num_pieces=40,
         layers=3,

@@ -86,9 +86,11 @@ def association_loss(
     (the pair of a query with itself too: a piece may close a loop) against the prepared links.
 
     Links are rare (about one per piece among the M^2 pairs of M pieces), so the positives are weighted
-    by negatives / positives of the batch (over all processes), clamped to [1, max_pos_weight]: the links
-    and the non-links then weigh about the same in total, and a batch with a handful of links does not
-    get an extreme weight. The mean is over the batch's matched pairs."""
+    by negatives / positives of the batch (over all processes), clamped to [1, max_pos_weight]: below the
+    clamp the links and the non-links weigh about the same in total, and a batch with a handful of links
+    does not get an extreme weight. The tiny heads clamp lower, at 10, so that the links disturb the
+    shared decoder less (docs/EXPERIMENTS.md, 2026-12-04, stop 35). The mean is over the batch's matched
+    pairs."""
     pair_logits, labels = [], []
     for frame, (rows, cols) in enumerate(matches):
         pair_logits.append(logits[frame][rows][:, rows].flatten())

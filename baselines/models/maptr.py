@@ -39,7 +39,9 @@ def tiny_head() -> MapTRConfig:
     and its fine BEV level (0.6 m cells, without which it barely learns in the CPU budget), 40 queries for
     at most 29 pieces a frame in the synthetic data. 880 steps leave several queries on some lanes, half
     of the copies driving it the wrong way: duplicates are suppressed within 3 m, and the score threshold
-    is 0.6, both chosen on the learning check's training frames (docs/EXPERIMENTS.md, 2026-12-04)."""
+    is 0.6, both chosen on the learning check's training frames; the links' positive weight is clamped
+    at 10, so that the association loss disturbs the shared decoder less (docs/EXPERIMENTS.md,
+    2026-12-04)."""
     return MapTRConfig(
         num_pieces=40,
         layers=3,
@@ -49,6 +51,7 @@ def tiny_head() -> MapTRConfig:
         score_threshold=0.6,
         fine_scale=2.5,
         duplicate_radius=3.0,
+        max_link_pos_weight=10.0,
     )
 
 

@@ -44,7 +44,8 @@ def paper_head() -> STSUConfig:
 def tiny_head() -> STSUConfig:
     """1,180,398 parameters with the tiny encoder (camera); LaneGAP's tiny layers and widths and its fine
     BEV level (0.6 m cells, without which it barely learns in the CPU budget), and MapTR's duplicate
-    suppression within 3 m and score threshold 0.6 (docs/EXPERIMENTS.md, 2026-12-04)."""
+    suppression within 3 m, score threshold 0.6 and links' positive weight clamped at 10
+    (docs/EXPERIMENTS.md, 2026-12-04)."""
     return STSUConfig(
         num_pieces=40,
         layers=3,
@@ -54,6 +55,7 @@ def tiny_head() -> STSUConfig:
         score_threshold=0.6,
         fine_scale=2.5,
         duplicate_radius=3.0,
+        max_link_pos_weight=10.0,
     )
 
 

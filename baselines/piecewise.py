@@ -56,7 +56,7 @@ class PieceModel(nn.Module):
         self.encoder = BEVEncoder(config.encoder)
         self.decoder = QueryDecoder(
             dim, head.num_pieces, head.piece_points, bezier_points, head.layers, head.heads,
-            head.ffn_channels, head.dropout, head.deform_points, head.fine_scale,
+            head.ffn_channels, head.dropout, head.deform_points, head.fine_scale, head.one_to_many_pieces,
         )  # fmt: skip
         self.association = AssociationHead(dim)
 
@@ -135,14 +135,15 @@ class PieceCriterion(nn.Module):
         """Prepared pieces (G, n, 2) -> what is matched and regressed."""
         return pieces
 
-    def forward(self, outputs: dict[str, torch.Tensor], targets: Targets) -> dict[str, torch.Tensor]:
-        head = self.head
-        device = outputs["logits"].device
-        goals = [self.target_geometry(p.float()) for p in targets.pieces]
-        count = torch.tensor(float(sum(len(p) for p in targets.pieces)), device=device)
-        num_targets = mean_over_processes(count).clamp(min=1.0)
+    def set_losses(
+        self, all_logits: torch.Tensor, all_points: torch.Tensor, goals: list[torch.Tensor], targets: Targets,
+        num_targets: torch.Tensor, repeats: int = 1,
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor], list[tuple[torch.Tensor, torch.Tensor]]]:  # fmt: skip
+        """Every layer's (L, B, Q) logits and (L, B, Q, N, 2) points against the targets, each repeated
+        `repeats` times -> the weighted sum over the layers, the last layer's terms and its matches."""
+        head, device = self.head, all_logits.device
         total = torch.zeros((), device=device)
-        for logits, points in zip(outputs["logits"], outputs["points"], strict=True):
+        for logits, points in zip(all_logits, all_points, strict=True):
             points = points.float()
             regressed = self.geometry(points)
             labels = torch.zeros_like(logits, dtype=torch.float32)
@@ -150,6 +151,7 @@ class PieceCriterion(nn.Module):
             dir_loss = torch.zeros((), device=device)
             matches = []
             for frame, goal in enumerate(goals):
+                goal = goal.repeat(repeats, 1, 1)
                 rows, cols = hungarian_match(logits[frame].detach(), regressed[frame].detach(), goal,
                                              head.cls_weight, head.point_weight, head.focal_alpha,
                                              head.focal_gamma)  # fmt: skip
@@ -158,22 +160,41 @@ class PieceCriterion(nn.Module):
                 labels[frame, rows] = 1.0
                 point_loss = point_loss + (regressed[frame, rows] - goal[cols]).abs().sum(-1).mean(-1).sum()
                 if self.direction_weight:
-                    target = targets.pieces[frame][cols].float()
+                    target = targets.pieces[frame].float().repeat(repeats, 1, 1)[cols]
                     dir_loss = dir_loss + direction_loss(points[frame, rows], target, self.extent)
             class_loss = sigmoid_focal_loss(logits.float(), labels, head.focal_alpha, head.focal_gamma)
-            class_loss, point_loss = class_loss / num_targets, point_loss / num_targets
-            dir_loss = dir_loss / num_targets
-            total = total + head.cls_weight * class_loss + head.point_weight * point_loss
-            total = total + self.direction_weight * dir_loss
+            count = num_targets * repeats
+            terms = {"cls": class_loss / count, "points": point_loss / count}
+            total = total + head.cls_weight * terms["cls"] + head.point_weight * terms["points"]
+            if self.direction_weight:
+                terms["direction"] = dir_loss / count
+                total = total + self.direction_weight * terms["direction"]
+        return total, terms, matches
+
+    def forward(self, outputs: dict[str, torch.Tensor], targets: Targets) -> dict[str, torch.Tensor]:
+        head = self.head
+        device = outputs["logits"].device
+        goals = [self.target_geometry(p.float()) for p in targets.pieces]
+        count = torch.tensor(float(sum(len(p) for p in targets.pieces)), device=device)
+        num_targets = mean_over_processes(count).clamp(min=1.0)
+        total, terms, matches = self.set_losses(
+            outputs["logits"], outputs["points"], goals, targets, num_targets
+        )
+        losses = {name: term.detach() for name, term in terms.items()}
+        if "many_logits" in outputs:
+            many, many_terms, _ = self.set_losses(
+                outputs["many_logits"], outputs["many_points"], goals, targets, num_targets,
+                head.one_to_many_repeats,
+            )  # fmt: skip
+            total = total + head.one_to_many_weight * many
+            losses["many_points"] = many_terms["points"].detach()
         link_loss = association_loss(outputs["links"], matches, targets, head.max_link_pos_weight)
         total = total + head.link_weight * link_loss
-        losses = {"cls": class_loss.detach(), "points": point_loss.detach(), "links": link_loss.detach()}
+        losses["links"] = link_loss.detach()
         if "fine" in outputs:
             fine = fine_losses(outputs["fine"], targets)
             total = total + head.fine_weight * sum(fine.values())
             losses.update({name: loss.detach() for name, loss in fine.items()})
-        if self.direction_weight:
-            losses["direction"] = dir_loss.detach()
         losses["loss"] = total
         return losses
 

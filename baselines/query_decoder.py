@@ -9,6 +9,11 @@ then it refines the points (in inverse-sigmoid space, as Deformable DETR) and sc
 
 Bezier variant: K control-point queries per instance; the curve is sampled at N points through the
 Bernstein matrix, and each query reads the BEV features along the curve (LaneGAP's Bezier attention).
+
+One-to-many group (MapTRv2's auxiliary one-to-many matching): extra instance queries that exist only in
+training, matched to the ground truth repeated several times, so that every target trains several queries
+a step; the instance self-attention keeps the two groups apart, so the one-to-one queries, the only ones
+at inference, never see them.
 """
 
 from __future__ import annotations
@@ -61,9 +66,11 @@ class DecoderLayer(nn.Module):
         self.dropout = nn.Dropout(dropout)
 
     def forward(
-        self, x: torch.Tensor, pos: torch.Tensor, anchors: torch.Tensor, levels: list[torch.Tensor]
-    ) -> torch.Tensor:
-        """x, pos (B, Q * N, C); anchors (B, Q * N, A, 2) unit coordinates; levels: BEV maps (B, C, H, W)."""
+        self, x: torch.Tensor, pos: torch.Tensor, anchors: torch.Tensor, levels: list[torch.Tensor],
+        instance_mask: torch.Tensor | None = None,
+    ) -> torch.Tensor:  # fmt: skip
+        """x, pos (B, Q * N, C); anchors (B, Q * N, A, 2) unit coordinates; levels: BEV maps (B, C, H, W);
+        instance_mask (Q, Q): True where instance i may not attend to instance j."""
         batch, tokens, dim = x.shape
         n = self.points_per_instance
 
@@ -71,7 +78,7 @@ class DecoderLayer(nn.Module):
             return t.view(batch, -1, n, dim).transpose(1, 2).reshape(batch * n, -1, dim)
 
         q = by_point(x + pos)
-        out = self.instance_attn(q, q, by_point(x), need_weights=False)[0]
+        out = self.instance_attn(q, q, by_point(x), attn_mask=instance_mask, need_weights=False)[0]
         out = out.view(batch, n, -1, dim).transpose(1, 2).reshape(batch, tokens, dim)
         x = self.norms[0](x + self.dropout(out))
         q = (x + pos).view(-1, n, dim)
@@ -85,22 +92,29 @@ class QueryDecoder(nn.Module):
     """BEV features (B, C, H, W) -> per layer instance logits (L, B, Q) and points (L, B, Q, N, 2) in unit
     coordinates, and the last layer's instance features (B, Q, C): the mean of its point features. With a
     fine scale, the attention also reads the fine BEV level, and in training "fine" holds its auxiliary
-    outputs (baselines/fine_bev.py)."""
+    outputs (baselines/fine_bev.py). With a one-to-many group, in training "many_logits" and
+    "many_points" hold its outputs, as "logits" and "points"."""
 
     def __init__(self, dim: int, instances: int, points: int, bezier_points: int, layers: int, heads: int,
-                 ffn: int, dropout: float, deform_points: int, fine_scale: float = 0.0):  # fmt: skip
+                 ffn: int, dropout: float, deform_points: int, fine_scale: float = 0.0,
+                 one_to_many: int = 0):  # fmt: skip
         super().__init__()
         self.fine = FineBEV(dim, fine_scale) if fine_scale else None
-        self.instances = instances
+        self.instances, self.one_to_many = instances, one_to_many
+        total = instances + one_to_many
         self.bezier = bezier_points > 0
         self.queries_per_instance = bezier_points if self.bezier else points
         # Each embedding holds a content half and a positional half.
-        self.instance_embedding = nn.Parameter(torch.randn(instances, 2 * dim) * 0.02)
+        self.instance_embedding = nn.Parameter(torch.randn(total, 2 * dim) * 0.02)
         self.point_embedding = nn.Parameter(torch.randn(self.queries_per_instance, 2 * dim) * 0.02)
         # Learned initial points of every query: straight lanes spread across the BEV width, alternately
         # driving forward and backward; lanes mostly run along the road, and starting there instead of
         # all at the centre speeds up training.
-        self.initial_reference = nn.Parameter(initial_lanes(instances, self.queries_per_instance))
+        lanes = [initial_lanes(n, self.queries_per_instance) for n in (instances, one_to_many) if n]
+        self.initial_reference = nn.Parameter(torch.cat(lanes))
+        # True (masked) between the two groups
+        group = torch.arange(total) >= instances
+        self.register_buffer("instance_mask", group[:, None] != group[None], False)
         anchors = bezier_points if self.bezier else 1
         levels = 2 if self.fine is not None else 1  # the coarse map, and the fine one
         self.layers = nn.ModuleList(
@@ -124,7 +138,7 @@ class QueryDecoder(nn.Module):
         if not self.bezier:
             return reference.unsqueeze(2)
         batch, k = reference.shape[0], self.queries_per_instance
-        curve = self.anchor_basis @ reference.view(batch, self.instances, k, 2)  # (B, Q, K, 2)
+        curve = self.anchor_basis @ reference.view(batch, -1, k, 2)  # (B, Q, K, 2)
         return curve.unsqueeze(2).expand(-1, -1, k, -1, -1).reshape(batch, -1, k, 2)
 
     def forward(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -135,17 +149,23 @@ class QueryDecoder(nn.Module):
             levels.append(fine)
             if aux is not None:
                 outputs["fine"] = aux
-        queries = (self.instance_embedding[:, None] + self.point_embedding[None]).flatten(0, 1)
+        # the one-to-many group only in training: the groups never meet, so leaving it out changes nothing
+        instances = self.instances + (self.one_to_many if self.training else 0)
+        mask = self.instance_mask if self.training and self.one_to_many else None
+        queries = (self.instance_embedding[:instances, None] + self.point_embedding[None]).flatten(0, 1)
         x, pos = queries.unsqueeze(0).expand(batch, -1, -1).split(dim, dim=-1)
-        reference = self.initial_reference.sigmoid().view(1, -1, 2).expand(batch, -1, -1)
+        reference = self.initial_reference[:instances].sigmoid().view(1, -1, 2).expand(batch, -1, -1)
         all_logits, all_points = [], []
         for layer, class_head, point_head in zip(self.layers, self.class_heads, self.point_heads):
-            x = layer(x, pos, self.anchors(to_unit(reference)), levels)
+            x = layer(x, pos, self.anchors(to_unit(reference)), levels, mask)
             refined = (point_head(x) + inverse_sigmoid(reference)).sigmoid()
-            features = x.view(batch, self.instances, self.queries_per_instance, dim).mean(2)
+            features = x.view(batch, instances, self.queries_per_instance, dim).mean(2)
             all_logits.append(class_head(features).squeeze(-1))
-            points = refined.view(batch, self.instances, self.queries_per_instance, 2)
+            points = refined.view(batch, instances, self.queries_per_instance, 2)
             all_points.append(to_unit(self.bernstein @ points if self.bezier else points))
             reference = refined.detach()  # each layer refines the previous one's points
-        outputs.update(logits=torch.stack(all_logits), points=torch.stack(all_points), features=features)
+        logits, points, one = torch.stack(all_logits), torch.stack(all_points), self.instances
+        if instances > one:
+            outputs.update(many_logits=logits[:, :, one:], many_points=points[:, :, one:])
+        outputs.update(logits=logits[:, :, :one], points=points[:, :, :one], features=features[:, :one])
         return outputs

@@ -37,6 +37,7 @@ def small_config(model: str):
     config = tiny()
     config.model, config.decoder = model, {"maptr": maptr, "stsu": stsu}[model].tiny_head()
     config.decoder.num_pieces, config.decoder.layers = 8, 2
+    config.decoder.one_to_many_pieces = 0  # MapTR's tiny head has it; its own test turns it on
     config.encoder.modality = "lidar"  # the cheapest encoder
     config.encoder.x_range, config.encoder.y_range = (RANGE.x_min, RANGE.x_max), (RANGE.y_min, RANGE.y_max)
     config.encoder.bev_h, config.encoder.bev_w = 8, 4
@@ -120,6 +121,41 @@ def test_loss_halves_when_overfitting_one_batch(model, overfit):
     assert history[-1]["loss"] < 0.5 * history[0]["loss"]
     assert history[-1]["links"] < 0.5 * history[0]["links"]
     assert history[-1]["points"] < 0.5 * history[0]["points"]
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_one_to_many_group_trains_on_repeated_targets_and_stays_apart(model):
+    torch.manual_seed(0)
+    config = small_config(model)
+    config.decoder.one_to_many_pieces, config.decoder.one_to_many_repeats = 7, 2
+    built = build(config)
+    sensors, targets = synthetic_batch()
+    outputs = built.model(sensors)
+    assert outputs["many_logits"].shape == (2, 2, 7) and outputs["many_points"].shape == (2, 2, 7, N, 2)
+    assert outputs["logits"].shape == (2, 2, 8) and outputs["links"].shape == (2, 8, 8)
+    # at inference the group is absent, and the one-to-one queries never saw it
+    bev = built.model.encoder(sensors).detach()
+    with torch.no_grad():
+        trained = built.model.decoder(bev)
+        built.model.decoder.eval()
+        alone = built.model.decoder(bev)
+    assert "many_logits" not in alone
+    torch.testing.assert_close(alone["logits"], trained["logits"], rtol=0, atol=1e-5)
+    torch.testing.assert_close(alone["points"], trained["points"], rtol=0, atol=1e-6)
+    # each target matched twice (frame 0: 3 pieces, 6 of 7 queries; frame 1: 2 pieces, 4 queries)
+    loss = built.loss
+    goals = [loss.target_geometry(p) for p in targets.pieces]
+    many = outputs["many_logits"], outputs["many_points"]
+    _, terms, matches = loss.set_losses(*many, goals, targets, torch.tensor(5.0), repeats=2)
+    for (rows, cols), frame_pieces in zip(matches, targets.pieces, strict=True):
+        assert len(rows) == 2 * len(frame_pieces) == len(set(rows.tolist()))
+        assert np.bincount(cols.numpy() % len(frame_pieces)).tolist() == [2] * len(frame_pieces)
+    built.model.train()
+    losses = built.loss(built.model(sensors), targets)
+    assert losses["many_points"] > 0.01
+    losses["loss"].backward()
+    grad = built.model.decoder.instance_embedding.grad
+    assert grad[8:].abs().sum(1).min() > 0  # every query of the group learns
 
 
 def oracle_outputs(model: str, pieces: list[torch.Tensor], links: list[torch.Tensor], queries: int):

@@ -35,13 +35,14 @@ def paper_head() -> MapTRConfig:
 
 
 def tiny_head() -> MapTRConfig:
-    """1,127,566 parameters with the tiny encoder (camera); the layers and widths of LaneGAP's tiny head,
-    and its fine BEV level (0.6 m cells, without which it barely learns in the CPU budget), 40 queries for
-    at most 29 pieces a frame in the synthetic data. 880 steps leave several queries on some lanes, half
-    of the copies driving it the wrong way: duplicates are suppressed within 3 m, and the score threshold
-    is 0.6, both chosen on the learning check's training frames; the links' positive weight is clamped
-    at 10, so that the association loss disturbs the shared decoder less (docs/EXPERIMENTS.md,
-    2026-12-04)."""
+    """1,127,566 parameters with the tiny encoder (camera), 1,134,286 in training; the layers and widths
+    of LaneGAP's tiny head, and its fine BEV level (0.6 m cells, without which it barely learns in the CPU
+    budget), 40 queries for at most 29 pieces a frame in the synthetic data. 880 steps leave several
+    queries on some lanes, half of the copies driving it the wrong way: duplicates are suppressed within 3
+    m, and the score threshold is 0.6, both chosen on the learning check's training frames; the links'
+    positive weight is clamped at 10, so that the association loss disturbs the shared decoder less;
+    MapTRv2's one-to-many matching (40 more queries in training, the targets repeated 3 times)
+    (docs/EXPERIMENTS.md, 2026-12-04)."""
     return MapTRConfig(
         num_pieces=40,
         layers=3,
@@ -52,6 +53,7 @@ def tiny_head() -> MapTRConfig:
         fine_scale=2.5,
         duplicate_radius=3.0,
         max_link_pos_weight=10.0,
+        one_to_many_pieces=40,
     )
 
 

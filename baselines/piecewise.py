@@ -160,7 +160,7 @@ class PieceCriterion(nn.Module):
                 labels[frame, rows] = 1.0
                 point_loss = point_loss + (regressed[frame, rows] - goal[cols]).abs().sum(-1).mean(-1).sum()
                 if self.direction_weight:
-                    target = targets.pieces[frame].float().repeat(repeats, 1, 1)[cols]
+                    target = targets.pieces[frame][cols % len(targets.pieces[frame])].float()
                     dir_loss = dir_loss + direction_loss(points[frame, rows], target, self.extent)
             class_loss = sigmoid_focal_loss(logits.float(), labels, head.focal_alpha, head.focal_gamma)
             count = num_targets * repeats

@@ -62,8 +62,9 @@ class PieceHeadConfig(QueryHeadConfig):
     # higher-scoring piece is dropped before Piece2Graph (benchmark/piece2graph.py suppress_duplicates)
     duplicate_radius: float = 0.0
     duplicate_overlap: float = 0.5
-    # MapTRv2's one-to-many matching: this many extra queries, in training only, matched to the ground
-    # truth repeated `one_to_many_repeats` times, their set loss weighted by `one_to_many_weight` (0: off)
+    # MapTRv2's one-to-many matching (0 pieces: off): this many extra queries, in training only, matched
+    # to the ground truth repeated `one_to_many_repeats` times, their set loss weighted by
+    # `one_to_many_weight`
     one_to_many_pieces: int = 0
     one_to_many_repeats: int = 3
     one_to_many_weight: float = 1.0

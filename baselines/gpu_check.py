@@ -36,13 +36,16 @@ DATA = {"logs": 10, "frames-per-log": 50, "frame-period": 0.4}
 SMOKE_DATA = {"logs": 8, "frames-per-log": 2, "frame-period": 1.0}
 
 console = Console()
+PHASES: list[tuple[str, float]] = []  # (command, seconds) of every `cli` command run so far
 
 
 def cli(*args: str) -> None:
     """One `cli` command in its own process, as a user runs it; its failure ends the check."""
     command = [sys.executable, "-m", "cli", *args]
     console.print(f"[bold]$ cli {' '.join(args)}[/bold]")
+    start = time.perf_counter()
     subprocess.run(command, check=True, cwd=Path(__file__).resolve().parent.parent)
+    PHASES.append((" ".join(args[:3]), time.perf_counter() - start))
 
 
 def contract_row(model: str, run: Path) -> dict:
@@ -105,6 +108,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=Path("gpu_check"))
     parser.add_argument("--smoke", action="store_true", help="tiny data, one epoch per model, any device")
     parser.add_argument("--epochs", type=int, help="default: the gpu preset's (1 with --smoke)")
+    parser.add_argument("--workers", type=int, default=4, help="cli prepare's worker processes")
     args = parser.parse_args()
 
     start = time.perf_counter()
@@ -113,8 +117,9 @@ def main() -> int:
         shutil.rmtree(out)
     data = SMOKE_DATA if args.smoke else DATA
     cli("synth", "--out", str(out / "raw"), *(f"--{key}={value}" for key, value in data.items()))
-    prepared = out / "prepared"
-    cli("prepare", "--dataset", "av2", "--root", str(out / "raw" / "av2" / "sensor"), "--out", str(prepared))
+    prepared, sensor = out / "prepared", out / "raw" / "av2" / "sensor"
+    workers = f"--workers={args.workers}"
+    cli("prepare", "--dataset", "av2", "--root", str(sensor), "--out", str(prepared), workers)
     epochs = args.epochs or (1 if args.smoke else None)
     for model in MODELS:
         run = out / "runs" / model
@@ -149,14 +154,19 @@ def main() -> int:
     leaders = [row["model"] for row in rows if row["junction_topo"] == best]
     console.print(f"Junction TOPO F1 is led by {' and '.join(leaders)} (the paper's claim: LaneGAP; the "
                   "report's summary says whether a lead is beyond the bootstrap interval)")  # fmt: skip
-    console.print(f"wrote {out / 'runs'} and {out / 'report' / 'report.md'}")
+    for command, phase_seconds in PHASES:
+        console.print(f"{phase_seconds:7.1f} s  cli {command}")
+    checks = [] if args.smoke else bars(rows, seconds)
+    summary = {"seconds": seconds, "epochs": epochs, "rows": rows, "phases": PHASES,
+               "checks": [{"what": what, "passed": passed} for what, passed in checks]}  # fmt: skip
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    console.print(f"wrote {out / 'runs'}, {out / 'report' / 'report.md'} and {out / 'summary.json'}")
     if args.smoke:
         failures = smoke_failures(out, rows)
         for failure in failures:
             console.print(f"[red]smoke: {failure}[/red]")
         console.print("smoke: every output exists, every score is finite" if not failures else "smoke FAILED")
         return 1 if failures else 0
-    checks = bars(rows, seconds)
     for what, passed in checks:
         console.print(f"{'PASS' if passed else 'FAIL'}  {what}")
     return 0 if all(passed for _, passed in checks) else 1

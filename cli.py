@@ -111,6 +111,7 @@ def synth(
         0, min=0, help="Random seed of the worlds, routes and sensors: same seed, same bytes"
     ),
     sensors: bool = typer.Option(True, help="Also render camera images and LiDAR sweeps"),
+    workers: int = typer.Option(1, min=1, help="Worker processes, one log at a time each (the same bytes)"),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Write a synthetic raw dataset in the real AV2 and nuScenes on-disk formats; the defaults are the
@@ -126,7 +127,8 @@ def synth(
 
     with reported_errors():
         summary = write_synth(out, logs=logs, frames_per_log=frames_per_log, seed=seed, sensors=sensors,
-                              frame_period=frame_period, worlds=worlds, val_worlds=val_worlds)  # fmt: skip
+                              frame_period=frame_period, worlds=worlds, val_worlds=val_worlds,
+                              workers=workers)  # fmt: skip
     worlds = ", ".join(f"{world['index']} {world['nuscenes_map']}" for world in summary["worlds"])
     heading = f"synth, seed {summary['seed']}: worlds {worlds}"
     wrote = [out / summary["av2_root"], out / summary["nuscenes_root"], out / "synth.json"]

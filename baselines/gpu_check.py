@@ -108,7 +108,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=Path("gpu_check"))
     parser.add_argument("--smoke", action="store_true", help="tiny data, one epoch per model, any device")
     parser.add_argument("--epochs", type=int, help="default: the gpu preset's (1 with --smoke)")
-    parser.add_argument("--workers", type=int, default=4, help="cli prepare's worker processes")
+    parser.add_argument("--workers", type=int, default=4, help="cli synth's and prepare's processes")
     args = parser.parse_args()
 
     start = time.perf_counter()
@@ -116,9 +116,9 @@ def main() -> int:
     if out.exists():
         shutil.rmtree(out)
     data = SMOKE_DATA if args.smoke else DATA
-    cli("synth", "--out", str(out / "raw"), *(f"--{key}={value}" for key, value in data.items()))
-    prepared, sensor = out / "prepared", out / "raw" / "av2" / "sensor"
     workers = f"--workers={args.workers}"
+    cli("synth", "--out", str(out / "raw"), *(f"--{key}={value}" for key, value in data.items()), workers)
+    prepared, sensor = out / "prepared", out / "raw" / "av2" / "sensor"
     cli("prepare", "--dataset", "av2", "--root", str(sensor), "--out", str(prepared), workers)
     epochs = args.epochs or (1 if args.smoke else None)
     for model in MODELS:

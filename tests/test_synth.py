@@ -585,10 +585,10 @@ def test_sensors_can_be_left_out(tmp_path):
     assert {Path(d["filename"]).parent.name for d in sample_data} == {"LIDAR_TOP"}
 
 
-def test_same_seed_same_bytes(tmp_path):
+def test_same_seed_same_bytes_with_one_or_two_workers(tmp_path):
     first, again = tmp_path / "first", tmp_path / "again"
-    for out in (first, again):
-        synth(out, logs=2, frames_per_log=4, seed=SEED)
+    for out, workers in ((first, 1), (again, 2)):
+        synth(out, logs=2, frames_per_log=4, seed=SEED, workers=workers)
     files = sorted(p.relative_to(first) for p in first.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
     assert any(name.suffix == ".jpg" for name in files) and any(name.suffix == ".bin" for name in files)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
@@ -38,13 +39,17 @@ def synth(
     frame_period: float = 1.0,
     worlds: int = 4,
     val_worlds: int = 1,
+    workers: int = 1,
 ) -> dict:
     """Write the dataset into out (replacing an earlier synth output there) and return a summary;
     sensors=False leaves out the camera images and LiDAR sweeps (and the AV2 calibration);
     frame_period: seconds between frames (1 s: 20 frames cover much of a route; both datasets sweep at
-    10 Hz, 0.1 s). The defaults are the learning checks' data."""
+    10 Hz, 0.1 s); workers: processes writing the logs, one log at a time each (the same bytes as one).
+    The defaults are the learning checks' data."""
     out = Path(out)
     check_arguments(logs, frames_per_log, seed, frame_period, worlds, val_worlds)
+    if workers < 1:
+        raise ValueError(f"--workers must be at least 1, not {workers}")
     built = [build_world(seed, k) for k in range(worlds)]
     plans = plan_logs(built, logs, frames_per_log, seed, round(frame_period * 1e9), val_worlds)
     driven = sorted({plan.world for plan in plans})
@@ -69,16 +74,30 @@ def synth(
         for k in driven:
             nuscenes_map.write_map(nuscenes_root, built[k], built[k].nuscenes_map, priors[k])
             progress.advance()
-        for plan in plans:
-            log_dir = av2_writer.write_log(av2_root, built[plan.world], plan)
-            if sensors:
-                write_sensors(built[plan.world], plan, log_dir, nuscenes_root)
-            progress.advance()
+        if workers == 1:
+            for plan in plans:
+                _write_log(built[plan.world], plan, av2_root, nuscenes_root, sensors)
+                progress.advance()
+        else:
+            with ProcessPoolExecutor(min(workers, len(plans))) as pool:
+                jobs = [pool.submit(_write_log, built[plan.world], plan, av2_root, nuscenes_root, sensors)
+                        for plan in plans]  # fmt: skip
+                for job in as_completed(jobs):
+                    job.result()
+                    progress.advance()
         nuscenes_writer.write_tables(nuscenes_root, built, plans, channels, priors)
         progress.advance()
     summary["complete"] = True
     (out / MARKER).write_text(json.dumps(summary, indent=1))
     return summary
+
+
+def _write_log(world: World, plan: LogPlan, av2_root: Path, nuscenes_root: Path, sensors: bool) -> None:
+    """One log's AV2 files and, with sensors, its images and sweeps in both formats (its own seeded
+    random stream: the order of the logs does not change a byte)."""
+    log_dir = av2_writer.write_log(av2_root, world, plan)
+    if sensors:
+        write_sensors(world, plan, log_dir, nuscenes_root)
 
 
 def check_arguments(

@@ -605,6 +605,9 @@ def test_rewrites_its_own_output_and_refuses_foreign_folders(tmp_path):
         synth(tmp_path / "b")
     with pytest.raises(ValueError):
         synth(tmp_path / "c", logs=11)
+    with pytest.raises(ValueError, match="--workers"):
+        synth(tmp_path / "d", workers=0)
+    assert not (tmp_path / "d").exists()
 
 
 def test_a_longer_frame_period_spreads_the_frames_along_the_route(world):

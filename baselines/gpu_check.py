@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -108,7 +109,8 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=Path("gpu_check"))
     parser.add_argument("--smoke", action="store_true", help="tiny data, one epoch per model, any device")
     parser.add_argument("--epochs", type=int, help="default: the gpu preset's (1 with --smoke)")
-    parser.add_argument("--workers", type=int, default=4, help="cli synth's and prepare's processes")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="cli synth's and prepare's "
+                        "processes (default: one per core)")  # fmt: skip
     args = parser.parse_args()
 
     start = time.perf_counter()

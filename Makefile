@@ -7,7 +7,7 @@ DEMO_SYNTH :=
 DEMO_TRAIN :=
 CLI := .venv/bin/cli
 
-.PHONY: demo demo-all test test-learning gpu-check gpu-smoke bench bench-train lint clean
+.PHONY: demo demo-all test test-learning gpu-check gpu-smoke bench bench-train bench-step lint clean
 
 $(STAMP): requirements.lock pyproject.toml
 	test -x $(PY) || python3.11 -m venv .venv || python3 -m venv .venv
@@ -66,8 +66,12 @@ bench: $(STAMP)
 bench-train: $(STAMP)
 	$(PY) baselines/bench_train.py
 
+# each model's training step time under the gpu preset on this machine's device (before make gpu-check)
+bench-step: $(STAMP)
+	$(PY) -m baselines.bench_step --preset gpu
+
 lint: $(STAMP)
 	.venv/bin/ruff check .
 
 clean:
-	rm -rf .venv $(DEMO) $(DEMO_ALL) gpu_check gpu_smoke
+	rm -rf .venv $(DEMO) $(DEMO_ALL) gpu_check gpu_smoke bench_step

@@ -183,8 +183,8 @@ def tiny() -> Config:
             # the synthetic cameras look level: the top 40 % is sky, 19-26 pixels above the horizon kept
             # (tests/test_camera_geometry.py); no BEV point projects there: cropping it costs nothing
             image_crop_top=0.4,
-            # every LiDAR point in the BEV range (the default's 120,000 exceed a synthetic sweep's): a random
-            # 20,000 of them lost most of the paint's returns (docs/EXPERIMENTS.md, 2026-12-04, stop 36)
+            # max_points stays the default's 120,000, more than a synthetic sweep holds in the BEV range: a
+            # random 20,000 lost most of the paint's returns (docs/EXPERIMENTS.md, 2026-12-04, stop 36)
             num_workers=0,
             cache_samples=True,
         ),

@@ -32,7 +32,7 @@ MODELS = ("lanegap", "hdmapnet", "maptr", "stsu")
 SENSOR_GAP = CONSTANT_MARGIN = 0.15
 LANEGAP_TOPO = 0.5
 WALL_SECONDS = 600
-# Synthetic data: 10 logs (3/4 train) of 50 frames 0.4 s apart; smoke: 8 logs of 2 frames.
+# Synthetic data: 10 logs (8 train, 2 val) of 50 frames 0.4 s apart; smoke: 8 logs of 2 frames.
 DATA = {"logs": 10, "frames-per-log": 50, "frame-period": 0.4}
 SMOKE_DATA = {"logs": 8, "frames-per-log": 2, "frame-period": 1.0}
 

@@ -1,6 +1,7 @@
-"""The executors of `cli prepare`: each runs the work it is given for one log on every log, and returns
-the results in log order. `run_local`: this process, or a fork pool; `run_ray` (`--executor ray`): one Ray
-task per log, on a local instance or on a running cluster.
+"""The executors of `cli prepare` (`run_local` also writes the logs of `cli synth --workers`): each runs
+the work it is given for one log on every log, and returns the results in log order. `run_local`: this
+process, or a fork pool; `run_ray` (`--executor ray`): one Ray task per log, on a local instance or on a
+running cluster.
 
 Each task runs the work it is given for one log (`cli prepare`: `prepare_log`), which writes the log's
 shards itself, exactly as the local executor does, so the shards are the same bytes; `root` and `out`

@@ -12,15 +12,16 @@ Neither devkit is imported here (they take seconds to import): the formats are w
 
 from __future__ import annotations
 
+import functools
 import json
 import shutil
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
 
+from pipeline.executor import run_local
 from pipeline.synth import av2_writer, nuscenes_map, nuscenes_writer
 from pipeline.synth.ids import token
 from pipeline.synth.logs import MINI_TRAIN, MINI_VAL, POSE_PERIOD_NS, LogPlan, plan_logs
@@ -47,9 +48,7 @@ def synth(
     10 Hz, 0.1 s); workers: processes writing the logs, one log at a time each (the same bytes as one).
     The defaults are the learning checks' data."""
     out = Path(out)
-    check_arguments(logs, frames_per_log, seed, frame_period, worlds, val_worlds)
-    if workers < 1:
-        raise ValueError(f"--workers must be at least 1, not {workers}")
+    check_arguments(logs, frames_per_log, seed, frame_period, worlds, val_worlds, workers)
     built = [build_world(seed, k) for k in range(worlds)]
     plans = plan_logs(built, logs, frames_per_log, seed, round(frame_period * 1e9), val_worlds)
     driven = sorted({plan.world for plan in plans})
@@ -74,17 +73,8 @@ def synth(
         for k in driven:
             nuscenes_map.write_map(nuscenes_root, built[k], built[k].nuscenes_map, priors[k])
             progress.advance()
-        if workers == 1:
-            for plan in plans:
-                _write_log(built[plan.world], plan, av2_root, nuscenes_root, sensors)
-                progress.advance()
-        else:
-            with ProcessPoolExecutor(min(workers, len(plans))) as pool:
-                jobs = [pool.submit(_write_log, built[plan.world], plan, av2_root, nuscenes_root, sensors)
-                        for plan in plans]  # fmt: skip
-                for job in as_completed(jobs):
-                    job.result()
-                    progress.advance()
+        write = functools.partial(_write_log, built, av2_root, nuscenes_root, sensors)
+        run_local(plans, write, min(workers, len(plans)), lambda plan: progress.advance())
         nuscenes_writer.write_tables(nuscenes_root, built, plans, channels, priors)
         progress.advance()
     summary["complete"] = True
@@ -92,16 +82,16 @@ def synth(
     return summary
 
 
-def _write_log(world: World, plan: LogPlan, av2_root: Path, nuscenes_root: Path, sensors: bool) -> None:
+def _write_log(built: list[World], av2_root: Path, nuscenes_root: Path, sensors: bool, plan: LogPlan) -> None:
     """One log's AV2 files and, with sensors, its images and sweeps in both formats (its own seeded
     random stream: the order of the logs does not change a byte)."""
-    log_dir = av2_writer.write_log(av2_root, world, plan)
+    log_dir = av2_writer.write_log(av2_root, built[plan.world], plan)
     if sensors:
-        write_sensors(world, plan, log_dir, nuscenes_root)
+        write_sensors(built[plan.world], plan, log_dir, nuscenes_root)
 
 
 def check_arguments(
-    logs: int, frames_per_log: int, seed: int, frame_period: float, worlds: int, val_worlds: int
+    logs: int, frames_per_log: int, seed: int, frame_period: float, worlds: int, val_worlds: int, workers: int
 ) -> None:
     """Refuse bad arguments before the worlds are built, each named as its `cli synth` option."""
     most_logs = len(MINI_TRAIN) + len(MINI_VAL)
@@ -111,6 +101,8 @@ def check_arguments(
         raise ValueError(f"--frames-per-log must be at least 1, not {frames_per_log}")
     if seed < 0:
         raise ValueError(f"--seed must be at least 0, not {seed}")
+    if workers < 1:
+        raise ValueError(f"--workers must be at least 1, not {workers}")
     period_ns = round(frame_period * 1e9)
     if period_ns <= 0 or period_ns % POSE_PERIOD_NS:
         raise ValueError(

@@ -23,6 +23,7 @@ from baselines.encoder import BEVEncoder, SensorBatch
 from baselines.fine_bev import fine_losses
 from baselines.matcher import hungarian_match
 from baselines.query_decoder import QueryDecoder
+from baselines.raster_head import lane_head, lane_head_losses, lane_outputs, lane_probability, snap_polylines
 from benchmark.piece2graph import piece2graph, suppress_duplicates
 from pipeline.lane_graph import LaneGraph
 
@@ -59,6 +60,7 @@ class PieceModel(nn.Module):
             head.ffn_channels, head.dropout, head.deform_points, head.fine_scale, head.one_to_many_pieces,
         )  # fmt: skip
         self.association = AssociationHead(dim)
+        self.lane_head = lane_head(config)
 
     def forward(self, batch: SensorBatch) -> dict[str, torch.Tensor]:
         return self.decode(self.encoder(batch))
@@ -67,6 +69,8 @@ class PieceModel(nn.Module):
         """BEV features (B, C, H, W) -> the outputs of `forward`."""
         outputs = self.decoder(bev)
         outputs["links"] = self.association(outputs["features"])
+        if self.lane_head is not None:
+            outputs.update(lane_outputs(self.lane_head, bev))
         return outputs
 
 
@@ -195,14 +199,19 @@ class PieceCriterion(nn.Module):
             fine = fine_losses(outputs["fine"], targets)
             total = total + head.fine_weight * sum(fine.values())
             losses.update({name: loss.detach() for name, loss in fine.items()})
+        if "lane_seg" in outputs:
+            lane = lane_head_losses(outputs, targets)
+            total = total + head.lane_weight * sum(lane.values())
+            losses.update({name: loss.detach() for name, loss in lane.items()})
         losses["loss"] = total
         return losses
 
 
 def piece_needs(config: Config) -> frozenset[str]:
     """The prepared tables a piece-wise model trains on: the pieces and their links, and the rasters
-    with a fine BEV level."""
-    return frozenset({"pieces", "raster"} if config.decoder.fine_scale else {"pieces"})
+    with a fine BEV level or a lane head."""
+    uses_raster = config.decoder.fine_scale or config.decoder.lane_head_width
+    return frozenset({"pieces", "raster"} if uses_raster else {"pieces"})
 
 
 class PiecePostProcess:
@@ -220,10 +229,14 @@ class PiecePostProcess:
         scores = outputs["logits"][-1].float().sigmoid().cpu()
         points = outputs["points"][-1].float().cpu()
         links = outputs["links"].float().sigmoid().cpu()
+        probability = lane_probability(outputs)
         graphs = []
-        for frame_scores, frame_points, frame_links in zip(scores, points, links, strict=True):
+        frames = zip(scores, points, links, strict=True)
+        for frame, (frame_scores, frame_points, frame_links) in enumerate(frames):
             keep = (frame_scores > head.score_threshold).nonzero().squeeze(1)
             pieces = [self.encoder.polyline_to_metres(p.numpy()) for p in frame_points[keep]]
+            if probability is not None:
+                pieces = snap_polylines(pieces, probability[frame], self.encoder, head.snap_radius)
             distinct = suppress_duplicates(
                 pieces, frame_scores[keep].numpy(), head.duplicate_radius, head.duplicate_overlap
             )

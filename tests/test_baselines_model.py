@@ -178,7 +178,16 @@ def test_lanegap_shapes_loss_and_gradients(modality, bezier_points):
     raster_direction = raster_mask * torch.randint(1, 37, (2, 400, 200), dtype=torch.uint8)
     assert outputs["fine"].shape == (2, 4, 100, 50)
     losses = LaneGAPLoss(config.decoder)(outputs, Targets(targets, seg, raster_mask, raster_direction))
-    assert set(losses) == {"loss", "cls", "points", "seg", "fine_seg", "fine_direction"}
+    assert set(losses) == {
+        "loss",
+        "cls",
+        "points",
+        "seg",
+        "fine_seg",
+        "fine_direction",
+        "lane_seg",
+        "lane_direction",
+    }
     assert torch.isfinite(losses["loss"])
     losses["loss"].backward()
     first = model.encoder.camera.backbone.conv1 if modality != "lidar" else model.encoder.lidar.point_net[0]
@@ -187,6 +196,7 @@ def test_lanegap_shapes_loss_and_gradients(modality, bezier_points):
     with torch.no_grad():
         outputs = model(batch)
     assert "seg" not in outputs and "fine" not in outputs  # the auxiliary heads are off at inference
+    assert outputs["lane_seg"].shape == (2, 2, 200, 100)  # the lane head's 0.3 m cells: snapping reads it
     selected = select_paths(outputs, threshold=0.0)
     assert len(selected) == 2 and selected[0][1].shape == (paths, n, 2)
     assert torch.all(selected[0][0][:-1] >= selected[0][0][1:])

@@ -87,13 +87,13 @@ def test_forward_backward_and_valid_graphs(model):
     assert outputs["logits"].shape == (2, 2, 8) and outputs["points"].shape == (2, 2, 8, N, 2)
     assert outputs["links"].shape == (2, 8, 8)
     losses = built.loss(outputs, targets)
-    expected = {"loss", "cls", "points", "links", "fine_seg", "fine_direction"}
+    expected = {"loss", "cls", "points", "links", "fine_seg", "fine_direction", "lane_seg", "lane_direction"}
     expected |= {"direction"} if model == "maptr" else set()
     assert set(losses) == expected
     assert all(torch.isfinite(v) for v in losses.values())
     assert losses["points"] > 0.01 and losses["links"] > 0.1
     losses["loss"].backward()
-    for module in (built.model.encoder, built.model.decoder, built.model.association):
+    for module in (built.model.encoder, built.model.decoder, built.model.association, built.model.lane_head):
         grads = [p.grad for p in module.parameters() if p.requires_grad]
         assert all(g is not None and torch.isfinite(g).all() for g in grads)
         assert any(g.abs().sum() > 0 for g in grads)

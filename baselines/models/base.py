@@ -41,6 +41,13 @@ class QueryHeadConfig:
     # lane and direction loss on the prepared rasters trains (baselines/fine_bev.py; the tiny presets')
     fine_scale: float = 0.0
     fine_weight: float = 1.0
+    # 0: off; w: HDMapNet's head of width w on the BEV (baselines/raster_head.py; the tiny presets'),
+    # trained on the prepared rasters, whose lane probability moves the regressed points up to
+    # snap_radius m across their polyline onto their lane's centre
+    lane_head_width: int = 0
+    lane_head_resolution: float = 0.3  # metres per cell of its raster (a whole multiple of the prepared 0.15)
+    lane_weight: float = 1.0
+    snap_radius: float = 1.0
     cls_weight: float = 2.0  # focal classification, in the loss and in the Hungarian matching's cost
     point_weight: float = 5.0  # L1 of the matched instances' points (STSU: of their control points)
     focal_alpha: float = 0.25

@@ -18,20 +18,18 @@ in image coordinates, where rows run down and so flip the sign of the y componen
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from baselines.config import Config
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
 from baselines.models.base import Built, preset_head
+from baselines.raster_head import RasterHead, raster_shape
 from baselines.raster_targets import raster_losses
-from baselines.resnet import resnet18
 from benchmark.pixel2graph import pixel2graph
 from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
@@ -55,7 +53,7 @@ class HDMapNetConfig:
 
 
 # Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP
-# within 5 % (LaneGAP: 37,976,700 paper, 1,150,799 tiny with its fine BEV level).
+# within 5 % (LaneGAP: 37,976,700 paper, 1,401,243 tiny with its fine BEV level and its lane head).
 
 
 def paper_head() -> HDMapNetConfig:
@@ -64,10 +62,11 @@ def paper_head() -> HDMapNetConfig:
 
 
 def tiny_head() -> HDMapNetConfig:
-    """1,102,732 parameters with the tiny encoder (camera). Output cells of 0.3 m (200 x 100 for 30 x 60
-    m): a quarter of the cost of the prepared rasters' 0.15 m, for a small loss in the ground truth's
-    round trip through Pixel2Graph (docs/EXPERIMENTS.md)."""
-    return HDMapNetConfig(width=12, resolution=0.3)
+    """1,386,496 parameters with the tiny encoder (camera): width 18, LaneGAP's size since the query
+    models carry a width-12 head of this kind (baselines/raster_head.py). Output cells of 0.3 m (200 x 100
+    for 30 x 60 m): a quarter of the cost of the prepared rasters' 0.15 m, for a small loss in the ground
+    truth's round trip through Pixel2Graph (docs/EXPERIMENTS.md)."""
+    return HDMapNetConfig(width=18, resolution=0.3)
 
 
 def head(preset: str) -> HDMapNetConfig:
@@ -75,87 +74,18 @@ def head(preset: str) -> HDMapNetConfig:
     return preset_head("HDMapNet", {"paper": paper_head, "tiny": tiny_head, "gpu": paper_head}, preset)
 
 
-def raster_shape(config: Config) -> tuple[int, int]:
-    """(rows, columns) of the output: cells of decoder.resolution from the front-left corner of the
-    encoder's range, enough to cover it (50 x 100 m in 0.3 m cells: 334 x 167, the last row and column
-    reaching past the range, as the prepared 0.15 m raster's 667 x 333 padded to 668 x 334)."""
-    (x0, x1), (y0, y1) = config.encoder.x_range, config.encoder.y_range
-    resolution = config.decoder.resolution
-    return math.ceil(round((y1 - y0) / resolution, 6)), math.ceil(round((x1 - x0) / resolution, 6))
-
-
-class Up(nn.Module):
-    """HDMapNet's `Up`: upsample to the skip's size, concatenate the skip, two 3x3 conv-BN-ReLU."""
-
-    def __init__(self, in_channels: int, out_channels: int):
-        super().__init__()
-        self.conv = nn.Sequential(
-            nn.Conv2d(in_channels, out_channels, 3, padding=1, bias=False),
-            nn.BatchNorm2d(out_channels),
-            nn.ReLU(True),
-            nn.Conv2d(out_channels, out_channels, 3, padding=1, bias=False),
-            nn.BatchNorm2d(out_channels),
-            nn.ReLU(True),
-        )
-
-    def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
-        # HDMapNet scales by 4 (its canvas is divisible by 8); the skip's size is the same there and
-        # also fits grids that are not.
-        x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=True)
-        return self.conv(torch.cat([skip, x], 1))
-
-
-class Branch(nn.Module):
-    """One output of BevEncode: `Up` with the layer1 skip, then x2 to the output size and a 1x1 conv."""
-
-    def __init__(self, width: int, out_channels: int):
-        super().__init__()
-        self.up1 = Up(width + 4 * width, 4 * width)
-        self.up2 = nn.Sequential(
-            nn.Conv2d(4 * width, 2 * width, 3, padding=1, bias=False),
-            nn.BatchNorm2d(2 * width),
-            nn.ReLU(True),
-            nn.Conv2d(2 * width, out_channels, 1),
-        )
-
-    def forward(self, x: torch.Tensor, skip: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
-        x = self.up1(x, skip)
-        return self.up2(F.interpolate(x, size=size, mode="bilinear", align_corners=True))
-
-
-class HDMapNet(nn.Module):
+class HDMapNet(RasterHead):
     """Sensors -> "seg": lane logits (B, 2, H, W) and "direction": (cos, sin) (B, 2, H, W), on the
-    raster grid (H x W cells of config.decoder.resolution)."""
+    raster grid (H x W cells of config.decoder.resolution): BevEncode (baselines/raster_head.py) on the
+    shared encoder."""
 
     def __init__(self, config: Config):
-        super().__init__()
-        width = config.decoder.width
+        super().__init__(config.encoder.channels, config.decoder.width,
+                         raster_shape(config.encoder, config.decoder.resolution))  # fmt: skip
         self.encoder = BEVEncoder(config.encoder)
-        self.size = raster_shape(config)
-        # BevEncode: the ResNet-18 trunk's layers on a stem that takes the BEV channels; no max-pool,
-        # so layer1 is at 1/2 of the input and layer3 at 1/8.
-        trunk = resnet18(width)
-        self.conv1 = nn.Conv2d(config.encoder.channels, width, 7, stride=2, padding=3, bias=False)
-        self.bn1, self.relu = trunk.bn1, trunk.relu
-        self.layer1, self.layer2, self.layer3 = trunk.layer1, trunk.layer2, trunk.layer3
-        self.seg_branch = Branch(width, 2)
-        self.direction_branch = Branch(width, 2)
 
     def forward(self, batch: SensorBatch) -> dict[str, torch.Tensor]:
         return self.decode(self.encoder(batch))
-
-    def decode(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
-        """BEV features (B, C, bev_h, bev_w) -> the outputs of `forward`."""
-        # Cell-centred grids on the same range: align_corners=False maps every centre onto its place.
-        # contiguous(): the encoder's map can be channels-last, and this head's backward on a
-        # channels-last input corrupts the heap in torch 2.13 on CPU (a crash, found by `cli train`).
-        x = F.interpolate(bev.contiguous(), size=self.size, mode="bilinear", align_corners=False)
-        skip = self.layer1(self.relu(self.bn1(self.conv1(x))))
-        x = self.layer3(self.layer2(skip))
-        return {
-            "seg": self.seg_branch(x, skip, self.size),
-            "direction": self.direction_branch(x, skip, self.size),
-        }
 
 
 class HDMapNetLoss(nn.Module):

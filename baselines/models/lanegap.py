@@ -3,9 +3,11 @@
 
 The model: the shared BEV encoder, the hierarchical-query deformable decoder regressing every path as N
 ordered points (or K Bezier control points, paper Eq. 2), and an auxiliary BEV lane segmentation in
-training; with `fine_scale` (the tiny preset) the decoder also reads a fine BEV level (fine_bev.py). The
-loss: paper Eq. 3 and 4, plus the fine level's lane and direction loss. The post-processing: paths above
-the score threshold, in metres, through Path2Graph.
+training; with `fine_scale` (the tiny preset) the decoder also reads a fine BEV level (fine_bev.py), and
+with `lane_head_width` (the tiny preset) a dense lane head beside it (raster_head.py). The loss: paper
+Eq. 3 and 4, plus the fine level's and the lane head's lane and direction losses. The post-processing:
+paths above the score threshold, in metres, snapped onto the lane head's lane centres (with one), through
+Path2Graph.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from baselines.fine_bev import fine_losses
 from baselines.matcher import hungarian_match
 from baselines.models.base import Built, QueryHeadConfig, preset_head
 from baselines.query_decoder import QueryDecoder
+from baselines.raster_head import lane_head, lane_head_losses, lane_outputs, lane_probability, snap_polylines
 from benchmark.path2graph import path2graph
 from pipeline.lane_graph import LaneGraph
 
@@ -49,7 +52,8 @@ def tiny_head() -> DecoderConfig:
     """The tiny preset's: 32 queries, 20 points, 3 layers at width 128."""
     # score_threshold 0.5: chosen on the synthetic training frames; a short schedule rarely scores a
     # path above 0.7. point_weight 20 with a fine BEV level at 0.6 m (fine_scale 2.5): the best of the
-    # levers measured within the CPU budget (docs/EXPERIMENTS.md, 2026-12-03).
+    # levers measured within the CPU budget (docs/EXPERIMENTS.md, 2026-12-03). The lane head puts the
+    # points within the metric's 0.45 m of their lane (docs/EXPERIMENTS.md, 2026-12-04, stop 38).
     return DecoderConfig(
         num_paths=32,
         path_points=20,
@@ -59,6 +63,7 @@ def tiny_head() -> DecoderConfig:
         dropout=0.0,
         point_weight=20.0,
         fine_scale=2.5,
+        lane_head_width=12,
         score_threshold=0.5,
     )
 
@@ -86,6 +91,7 @@ class LaneGAP(nn.Module):
             if head.aux_seg
             else None
         )
+        self.lane_head = lane_head(config)
 
     def forward(self, batch: SensorBatch) -> dict[str, torch.Tensor]:
         return self.decode(self.encoder(batch))
@@ -95,6 +101,8 @@ class LaneGAP(nn.Module):
         outputs = self.decoder(bev)
         if self.seg_head is not None and self.training:
             outputs["seg"] = self.seg_head(bev)
+        if self.lane_head is not None:
+            outputs.update(lane_outputs(self.lane_head, bev))
         return outputs
 
 
@@ -139,6 +147,10 @@ class LaneGAPLoss(nn.Module):
             fine = fine_losses(outputs["fine"], targets)
             total = total + config.fine_weight * sum(fine.values())
             losses.update({name: loss.detach() for name, loss in fine.items()})
+        if "lane_seg" in outputs:
+            lane = lane_head_losses(outputs, targets)
+            total = total + config.lane_weight * sum(lane.values())
+            losses.update({name: loss.detach() for name, loss in lane.items()})
         losses["loss"] = total
         return losses
 
@@ -164,15 +176,20 @@ class PostProcess:
     Path2Graph (paper Alg. 2)."""
 
     def __init__(self, config: Config):
-        self.encoder, self.threshold = config.encoder, config.decoder.score_threshold
+        self.encoder, self.head = config.encoder, config.decoder
 
     def __call__(self, outputs: dict[str, torch.Tensor]) -> list[LaneGraph]:
-        return [
-            path2graph([self.encoder.polyline_to_metres(p.numpy()) for p in points])
-            for _, points in select_paths(outputs, self.threshold)
-        ]
+        probability = lane_probability(outputs)
+        graphs = []
+        for frame, (_, points) in enumerate(select_paths(outputs, self.head.score_threshold)):
+            paths = [self.encoder.polyline_to_metres(p.numpy()) for p in points]
+            if probability is not None:
+                paths = snap_polylines(paths, probability[frame], self.encoder, self.head.snap_radius)
+            graphs.append(path2graph(paths))
+        return graphs
 
 
 def build(config: Config) -> Built:
-    needs = frozenset({"paths", "raster"} if config.decoder.fine_scale else {"paths"})
+    uses_raster = config.decoder.fine_scale or config.decoder.lane_head_width
+    needs = frozenset({"paths", "raster"} if uses_raster else {"paths"})
     return Built(LaneGAP(config), LaneGAPLoss(config.decoder), PostProcess(config), needs, "path")

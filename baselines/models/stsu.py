@@ -32,7 +32,7 @@ class STSUConfig(PieceHeadConfig):
 
 
 # Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP within
-# 3 % (LaneGAP: 37,976,700 paper, 1,150,799 tiny), at LaneGAP's decoder widths (the Bezier
+# 3 % (LaneGAP: 37,976,700 paper, 1,401,243 tiny), at LaneGAP's decoder widths (the Bezier
 # attention's offsets per anchor add what the association head saves on LaneGAP's segmentation head).
 
 
@@ -42,9 +42,9 @@ def paper_head() -> STSUConfig:
 
 
 def tiny_head() -> STSUConfig:
-    """1,180,398 parameters with the tiny encoder (camera); LaneGAP's tiny layers and widths and its fine
-    BEV level (0.6 m cells, without which it barely learns in the CPU budget), and MapTR's duplicate
-    suppression within 3 m, score threshold 0.6 and links' positive weight clamped at 10
+    """1,430,842 parameters with the tiny encoder (camera); LaneGAP's tiny layers and widths, its fine BEV
+    level (0.6 m cells, without which it barely learns in the CPU budget) and lane head, and MapTR's
+    duplicate suppression within 3 m, score threshold 0.6 and links' positive weight clamped at 10
     (docs/EXPERIMENTS.md, 2026-12-04)."""
     return STSUConfig(
         num_pieces=40,
@@ -54,6 +54,7 @@ def tiny_head() -> STSUConfig:
         dropout=0.0,
         score_threshold=0.6,
         fine_scale=2.5,
+        lane_head_width=12,
         duplicate_radius=3.0,
         max_link_pos_weight=10.0,
     )

@@ -124,8 +124,9 @@ def lane_head_losses(outputs: dict[str, torch.Tensor], targets: Targets) -> dict
     if targets.raster_mask is None:
         raise ValueError("the lane head trains on the prepared rasters: the model must need 'raster'")
     seg, direction = raster_losses(
-        outputs["lane_seg"], outputs["lane_direction"], targets.raster_mask, targets.raster_direction
-    )
+        outputs["lane_seg"], outputs["lane_direction"], targets.raster_mask, targets.raster_direction,
+        adaptive=True,
+    )  # fmt: skip
     return {"lane_seg": seg, "lane_direction": direction}
 
 

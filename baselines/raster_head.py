@@ -178,4 +178,6 @@ def snap_polylines(
     shift = (weight * offsets[None]).sum(1) / np.maximum(weight.sum(1), 1e-12)
     moved = top.any(1) & (length[:, 0] > 0)
     snapped = xy + np.where(moved, shift, 0.0)[:, None] * normal
+    # inside the map, as the ground truth and the unsnapped points (polyline_to_metres)
+    snapped = np.clip(snapped, [x0, y0], [x1, y1])
     return np.split(snapped, np.cumsum(sizes)[:-1])

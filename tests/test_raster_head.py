@@ -66,6 +66,16 @@ def test_an_oblique_curve_snaps_across_itself(encoder):
     assert inside.sum() > 20 and distance.max() < 0.16, distance.max()
 
 
+def test_snapped_points_stay_inside_the_map(encoder):
+    (x0, x1), (y0, y1) = encoder.x_range, encoder.y_range
+    lanes = [straight(x1 - 0.1), np.column_stack([np.linspace(-10, 10, 20), np.full(20, y1 - 0.1)])]
+    probability = lane_raster(lanes, encoder)
+    predicted = [straight(x1 - 0.5), np.column_stack([np.linspace(-10, 10, 20), np.full(20, y1 - 0.6)])]
+    snapped = np.concatenate(snap_polylines(predicted, probability, encoder, radius=1.0))
+    assert np.all((snapped >= [x0, y0]) & (snapped <= [x1, y1]))
+    assert np.abs(snapped[:20, 0] - (x1 - 0.1)).max() < 0.2  # moved to the lane at the map's edge
+
+
 def test_points_without_a_lane_near_them_stay(encoder):
     probability = lane_raster([straight(0.0)], encoder)
     far = [straight(2.5)]  # the lane is 2.5 m away: beyond the radius

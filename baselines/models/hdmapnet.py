@@ -120,8 +120,10 @@ class PostProcess:
 
     @torch.no_grad()
     def __call__(self, outputs: dict[str, torch.Tensor]) -> list[LaneGraph]:
-        masks = (outputs["seg"].float().softmax(1)[:, 1] > self.threshold).cpu().numpy()
-        directions = outputs["direction"].float().cpu().numpy()
+        # the grid's cells whose centres lie in the range: the output's last row and column may reach past it
+        rows, cols = self.grid.shape
+        masks = (outputs["seg"].float().softmax(1)[:, 1, :rows, :cols] > self.threshold).cpu().numpy()
+        directions = outputs["direction"].float()[..., :rows, :cols].cpu().numpy()
         graphs = []
         for mask, (dx, dy) in zip(masks, directions, strict=True):
             bins = np.where(mask, self.grid.direction_bin(dx, dy), 0).astype(np.uint8)

@@ -210,8 +210,7 @@ class PieceCriterion(nn.Module):
 def piece_needs(config: Config) -> frozenset[str]:
     """The prepared tables a piece-wise model trains on: the pieces and their links, and the rasters
     with a fine BEV level or a lane head."""
-    uses_raster = config.decoder.fine_scale or config.decoder.lane_head_width
-    return frozenset({"pieces", "raster"} if uses_raster else {"pieces"})
+    return frozenset({"pieces", "raster"} if config.decoder.needs_raster else {"pieces"})
 
 
 class PiecePostProcess:

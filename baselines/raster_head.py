@@ -88,17 +88,18 @@ class RasterHead(nn.Module):
         self.seg_branch = Branch(width, 2)
         self.direction_branch = Branch(width, 2)
 
-    def decode(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
+    def decode(self, bev: torch.Tensor, direction: bool = True) -> dict[str, torch.Tensor]:
+        """direction=False leaves out the direction branch (a query model's lane head at inference)."""
         # Cell-centred grids on the same range: align_corners=False maps every centre onto its place.
         # contiguous(): the encoder's map can be channels-last, and this head's backward on a
         # channels-last input corrupts the heap in torch 2.13 on CPU (a crash, found by `cli train`).
         x = F.interpolate(bev.contiguous(), size=self.size, mode="bilinear", align_corners=False)
         skip = self.layer1(self.relu(self.bn1(self.conv1(x))))
         x = self.layer3(self.layer2(skip))
-        return {
-            "seg": self.seg_branch(x, skip, self.size),
-            "direction": self.direction_branch(x, skip, self.size),
-        }
+        outputs = {"seg": self.seg_branch(x, skip, self.size)}
+        if direction:
+            outputs["direction"] = self.direction_branch(x, skip, self.size)
+        return outputs
 
 
 def lane_head(config: Config) -> RasterHead | None:
@@ -111,11 +112,15 @@ def lane_head(config: Config) -> RasterHead | None:
 
 
 def lane_outputs(head: RasterHead, bev: torch.Tensor) -> dict[str, torch.Tensor]:
-    """The lane head's outputs under the names a query model's outputs give them (in evaluation too:
-    the post-processing reads the lane probability). It reads the BEV features without training them:
-    the query model learns as it would without the head, which only refines its points."""
-    outputs = head.decode(bev.detach())
-    return {"lane_seg": outputs["seg"], "lane_direction": outputs["direction"]}
+    """The lane head's outputs under the names a query model's outputs give them: the lane logits always
+    (the post-processing reads the lane probability), the direction in training only (its loss). It
+    reads the BEV features without training them: the query model learns as it would without the head,
+    which only refines its points."""
+    outputs = head.decode(bev.detach(), direction=head.training)
+    named = {"lane_seg": outputs["seg"]}
+    if "direction" in outputs:
+        named["lane_direction"] = outputs["direction"]
+    return named
 
 
 def lane_head_losses(outputs: dict[str, torch.Tensor], targets: Targets) -> dict[str, torch.Tensor]:

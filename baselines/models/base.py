@@ -54,6 +54,11 @@ class QueryHeadConfig:
     focal_gamma: float = 2.0
     score_threshold: float = 0.4  # instances kept at inference
 
+    @property
+    def needs_raster(self) -> bool:
+        """Whether the head trains on the prepared rasters (its fine level or its lane head)."""
+        return bool(self.fine_scale or self.lane_head_width)
+
 
 @dataclass
 class PieceHeadConfig(QueryHeadConfig):

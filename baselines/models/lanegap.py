@@ -190,6 +190,5 @@ class PostProcess:
 
 
 def build(config: Config) -> Built:
-    uses_raster = config.decoder.fine_scale or config.decoder.lane_head_width
-    needs = frozenset({"paths", "raster"} if uses_raster else {"paths"})
+    needs = frozenset({"paths", "raster"} if config.decoder.needs_raster else {"paths"})
     return Built(LaneGAP(config), LaneGAPLoss(config.decoder), PostProcess(config), needs, "path")

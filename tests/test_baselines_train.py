@@ -281,3 +281,33 @@ def test_a_checkpoint_that_needs_unpickling_is_refused(tmp_path):
     torch.save({"model": {}, "rng": [np.random.get_state()]}, tmp_path / "checkpoint.pt")
     with pytest.raises(ValueError, match="checkpoint.pt: refused"):
         load_model(tmp_path, torch.device("cpu"))
+
+
+@pytest.mark.parametrize("model", ["lanegap", "hdmapnet", "maptr", "stsu"])
+def test_a_training_step_and_post_processing_under_bf16_autocast(synth_prepared, model):
+    """The gpu preset trains and predicts under CUDA's bf16 autocast, which CI has no GPU for: under the
+    CPU's bf16 autocast the outputs come in bf16 too, and the loss, its gradients and the post-processing
+    (every prediction kept) must take them."""
+    from baselines.models import build
+    from baselines.train import use_dataset_range
+
+    torch.manual_seed(0)
+    config = resolve_config("tiny", model=model)
+    config.decoder.score_threshold = 0.0 if model != "hdmapnet" else 0.3
+    use_dataset_range(config, synth_prepared["av2"], master=False)
+    built = build(config)
+    dataset = PreparedDataset(synth_prepared["av2"], "train", config, built.needs)
+    batch = collate([dataset[0], dataset[10]])
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        outputs = built.model(batch.sensors)
+    assert torch.bfloat16 in {v.dtype for v in outputs.values() if isinstance(v, torch.Tensor)}
+    losses = built.loss(outputs, batch.targets)
+    assert all(torch.isfinite(v) for v in losses.values())
+    losses["loss"].backward()
+    grads = [p.grad for p in built.model.parameters() if p.grad is not None]
+    assert len(grads) > 0.9 * sum(1 for _ in built.model.parameters())
+    assert all(torch.isfinite(g).all() for g in grads)
+    built.model.eval()
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+        graphs = built.to_graphs(built.model(batch.sensors))
+    assert len(graphs) == 2 and all(len(g.x) > 0 and len(g.src) > 0 for g in graphs)

@@ -22,8 +22,8 @@ import torch.multiprocessing as mp
 
 from baselines.config import Config
 from baselines.data import PreparedDataset, collate, resample_polyline
-from baselines.models import load_config, resolve_config
-from baselines.train import lr_factor, train
+from baselines.models import build, load_config, resolve_config
+from baselines.train import lr_factor, train, use_dataset_range
 from pipeline import io
 from pipeline.camera import scaled_intrinsics
 from pipeline.geometry import Range
@@ -288,11 +288,9 @@ def test_a_training_step_and_post_processing_under_bf16_autocast(synth_prepared,
     """The gpu preset trains and predicts under CUDA's bf16 autocast, which CI has no GPU for: under the
     CPU's bf16 autocast the outputs come in bf16 too, and the loss, its gradients and the post-processing
     (every prediction kept) must take them."""
-    from baselines.models import build
-    from baselines.train import use_dataset_range
-
     torch.manual_seed(0)
     config = resolve_config("tiny", model=model)
+    # every path or piece kept; HDMapNet's threshold is per cell, and at 0 every cell would be lane
     config.decoder.score_threshold = 0.0 if model != "hdmapnet" else 0.3
     use_dataset_range(config, synth_prepared["av2"], master=False)
     built = build(config)

@@ -17,13 +17,15 @@ $(STAMP): requirements.lock pyproject.toml
 
 # The demo's pipeline, one recipe for every model (tiny preset, fusion): $(1) the folder, $(2) the models,
 # $(3) more `cli report` options. DEMO_SYNTH and DEMO_TRAIN add options to `cli synth` and to every
-# `cli train`, e.g. a quick check of the steps: make demo-all DEMO_SYNTH="--logs 4" DEMO_TRAIN="--epochs 1".
+# `cli train`, e.g. a quick check of the steps: make demo-all DEMO_SYNTH="--logs 4" DEMO_TRAIN="--epochs 1"
+# (the nuScenes version, v1.0-mini or v1.0-trainval by the number of logs, is read from synth.json).
 # It ends with `cli report`, which prints the main table and the path of report.md.
 define demo_pipeline
 	rm -rf $(1)
 	$(CLI) synth --out $(1)/raw $(DEMO_SYNTH)
 	$(CLI) prepare --dataset av2 --root $(1)/raw/av2/sensor --out $(1)/prepared/av2
-	$(CLI) prepare --dataset nuscenes --root $(1)/raw/nuscenes --version v1.0-mini --out $(1)/prepared/nuscenes
+	$(CLI) prepare --dataset nuscenes --root $(1)/raw/nuscenes --out $(1)/prepared/nuscenes \
+		--version $$($(PY) -c "import json; print(json.load(open('$(1)/raw/synth.json'))['nuscenes_version'])")
 	$(CLI) roundtrip --data $(1)/prepared/av2 --via path --out $(1)/roundtrip_path.json
 	$(CLI) roundtrip --data $(1)/prepared/av2 --via piece --out $(1)/roundtrip_piece.json
 	$(CLI) roundtrip --data $(1)/prepared/av2 --via pixel --out $(1)/roundtrip_pixel.json

@@ -94,13 +94,19 @@ def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[s
 def synth(
     out: Path = typer.Option(..., help="Folder to write OUT/av2/sensor/... and OUT/nuscenes/... into"),
     logs: int = typer.Option(
-        10,
+        18,
         min=1,
-        max=10,
-        help="Logs (AV2) / scenes (nuScenes): 3/4 train, the rest val (nuScenes mini's names)",
+        help="Logs (AV2) / scenes (nuScenes): 3/4 train, the rest (at most 2) val; nuScenes split names: "
+        "v1.0-mini's up to 8 training logs, else v1.0-trainval's",
     ),
-    frames_per_log: int = typer.Option(20, min=1, help="Key frames per log"),
-    frame_period: float = typer.Option(1.0, min=0.02, help="Seconds between key frames, a multiple of 0.02"),
+    frames_per_log: int = typer.Option(10, min=1, help="Key frames per training log"),
+    frame_period: float = typer.Option(
+        2.0, min=0.02, help="Seconds between a training log's key frames, a multiple of 0.02"
+    ),
+    val_frames_per_log: int = typer.Option(20, min=1, help="Key frames per validation log"),
+    val_frame_period: float = typer.Option(
+        1.0, min=0.02, help="Seconds between a validation log's key frames, a multiple of 0.02"
+    ),
     worlds: int = typer.Option(
         4, min=1, max=4, help="Procedural worlds, one nuScenes map location / AV2 city each"
     ),
@@ -115,12 +121,13 @@ def synth(
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Write a synthetic raw dataset in the real AV2 and nuScenes on-disk formats; the defaults are the
-    learning checks' data (10 logs x 20 frames, validation on a world of its own).
+    learning checks' data (16 training logs x 10 frames 2 s apart, 2 validation logs x 20 frames 1 s apart
+    on a world of their own).
 
     \b
     Examples:
       cli synth --out demo/raw
-      cli synth --out tiny/raw --logs 2 --frames-per-log 3 --worlds 2 --no-sensors
+      cli synth --out tiny/raw --logs 2 --frames-per-log 3 --val-frames-per-log 3 --worlds 2 --no-sensors
     """
     from pipeline.synth import summary_table
     from pipeline.synth import synth as write_synth
@@ -128,7 +135,8 @@ def synth(
     with reported_errors():
         summary = write_synth(out, logs=logs, frames_per_log=frames_per_log, seed=seed, sensors=sensors,
                               frame_period=frame_period, worlds=worlds, val_worlds=val_worlds,
-                              workers=workers)  # fmt: skip
+                              workers=workers, val_frames_per_log=val_frames_per_log,
+                              val_frame_period=val_frame_period)  # fmt: skip
     worlds = ", ".join(f"{world['index']} {world['nuscenes_map']}" for world in summary["worlds"])
     heading = f"synth, seed {summary['seed']}: worlds {worlds}"
     wrote = [out / summary["av2_root"], out / summary["nuscenes_root"], out / "synth.json"]

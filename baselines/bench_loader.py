@@ -161,7 +161,7 @@ def prepare_default(tmp: Path) -> list[Path]:
     raw = tmp / "raw"
     steps = [
         [cli, "synth", "--out", raw],
-        [cli, "prepare", "--dataset", "nuscenes", "--root", raw / "nuscenes", "--version", "v1.0-mini",
+        [cli, "prepare", "--dataset", "nuscenes", "--root", raw / "nuscenes", "--version", "v1.0-trainval",
          "--out", tmp / "nus"],
         [cli, "prepare", "--dataset", "av2", "--root", raw / "av2" / "sensor", "--out", tmp / "av2"],
     ]  # fmt: skip

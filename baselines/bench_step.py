@@ -25,7 +25,13 @@ from rich.table import Table
 
 ROOT = Path(__file__).resolve().parent.parent
 # 4 logs (3 for training) x 12 frames: at batch 8, 4 steps an epoch
-DATA = {"logs": 4, "frames-per-log": 12, "frame-period": 0.4}
+DATA = {
+    "logs": 4,
+    "frames-per-log": 12,
+    "frame-period": 0.4,
+    "val-frames-per-log": 12,
+    "val-frame-period": 0.4,
+}
 
 console = Console()
 

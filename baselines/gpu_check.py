@@ -33,8 +33,20 @@ SENSOR_GAP = CONSTANT_MARGIN = 0.15
 LANEGAP_TOPO = 0.5
 WALL_SECONDS = 600
 # Synthetic data: 10 logs (8 train, 2 val) of 50 frames 0.4 s apart; smoke: 8 logs of 2 frames.
-DATA = {"logs": 10, "frames-per-log": 50, "frame-period": 0.4}
-SMOKE_DATA = {"logs": 8, "frames-per-log": 2, "frame-period": 1.0}
+DATA = {
+    "logs": 10,
+    "frames-per-log": 50,
+    "frame-period": 0.4,
+    "val-frames-per-log": 50,
+    "val-frame-period": 0.4,
+}
+SMOKE_DATA = {
+    "logs": 8,
+    "frames-per-log": 2,
+    "frame-period": 1.0,
+    "val-frames-per-log": 2,
+    "val-frame-period": 1.0,
+}
 
 console = Console()
 PHASES: list[tuple[str, float]] = []  # (command, seconds) of every `cli` command run so far

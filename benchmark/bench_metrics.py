@@ -39,7 +39,7 @@ def prepare_default(tmp: Path) -> list[Path]:
     from pipeline.synth import synth
     from pipeline.targets import TargetOptions
 
-    synth(tmp / "raw", logs=4, frames_per_log=20, seed=0)
+    synth(tmp / "raw", logs=4, frames_per_log=20, seed=0, frame_period=1.0, val_frames_per_log=20)
     prepare("av2", tmp / "raw" / "av2" / "sensor", tmp / "synth", TargetOptions())
     out = [tmp / "synth"]
     if SHARED_AV2.is_dir():

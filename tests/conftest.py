@@ -40,7 +40,16 @@ def synth_raw(tmp_path_factory) -> Path:
     from pipeline.synth import synth
 
     out = tmp_path_factory.mktemp("synth")
-    synth(out, logs=4, frames_per_log=20, seed=0, frame_period=0.1, worlds=1)
+    synth(
+        out,
+        logs=4,
+        frames_per_log=20,
+        seed=0,
+        frame_period=0.1,
+        worlds=1,
+        val_frames_per_log=20,
+        val_frame_period=0.1,
+    )
     return out
 
 

@@ -1,6 +1,7 @@
 """The learning contract: each model (tiny preset, CPU, the preset's 880 steps at batch 2) trained on
 the synthetic training logs and scored on the validation logs, which drive a world no training log
-visits (`cli synth`'s default data: 10 logs x 20 frames 1 s apart, 4 worlds), must
+visits (`cli synth`'s default data: 16 training logs x 10 frames 2 s apart, 2 validation logs x 20
+frames 1 s apart, 4 worlds), must
 
 (a) read its sensors: directed TOPO F1 with its own sensors minus with another log's sensors (the
     floor's `other_log_sensors`, the same validation frames) >= SENSOR_GAP (LiDAR-only LaneGAP:

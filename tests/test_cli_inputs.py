@@ -46,7 +46,9 @@ def tiny(tmp_path_factory) -> dict[str, Path]:
     from pipeline.targets import TargetOptions
 
     raw = tmp_path_factory.mktemp("inputs_raw")
-    synth(raw, logs=2, frames_per_log=3, seed=0, sensors=False, worlds=2)
+    synth(
+        raw, logs=2, frames_per_log=3, seed=0, sensors=False, frame_period=1.0, worlds=2, val_frames_per_log=3
+    )
     prepared = tmp_path_factory.mktemp("inputs_prepared") / "av2"
     prepare("av2", raw / "av2" / "sensor", prepared, TargetOptions())
     return {"raw": raw, "av2": raw / "av2" / "sensor", "nuscenes": raw / "nuscenes", "prepared": prepared}
@@ -145,7 +147,7 @@ def test_roundtrip_refuses_out_of_range_options(tiny):
     "args, words",
     [
         (["--logs", 0], ["'--logs'", "greater than or equal to 1"]),
-        (["--logs", 11], ["'--logs'", "less than or equal to 10"]),
+        (["--logs", 35], ["--logs", "1 to 34"]),
         (["--worlds", 9], ["'--worlds'", "less than or equal to 4"]),
         (["--frames-per-log", 0], ["'--frames-per-log'", "greater than or equal to 1"]),
         (["--seed", -1], ["'--seed'", "greater than or equal to 0"]),
@@ -241,7 +243,17 @@ def test_every_command_says_what_it_wrote_and_json_is_one_line(tmp_path):
     """synth -> prepare -> roundtrip -> score from the command line: with --json stdout is one JSON line
     and the paths written go to stderr; without it, tables with headers and a `wrote` line."""
     raw, data = tmp_path / "raw", tmp_path / "prepared"
-    tiny_synth = ["--logs", 2, "--frames-per-log", 2, "--worlds", 2, "--no-sensors"]
+    tiny_synth = [
+        "--logs",
+        2,
+        "--frames-per-log",
+        2,
+        "--val-frames-per-log",
+        2,
+        "--worlds",
+        2,
+        "--no-sensors",
+    ]
     runs = [
         ("synth", ["--out", raw, *tiny_synth], [raw / "av2/sensor"]),
         ("prepare", ["--dataset", "av2", "--root", raw / "av2/sensor", "--out", data], [data]),

@@ -78,7 +78,17 @@ def synth_av2(tmp_path_factory) -> tuple[Path, Path]:
     from pipeline.synth import synth
 
     raw = tmp_path_factory.mktemp("faults_raw")
-    synth(raw, logs=4, frames_per_log=20, seed=0, sensors=False, frame_period=0.5, worlds=1)
+    synth(
+        raw,
+        logs=4,
+        frames_per_log=20,
+        seed=0,
+        sensors=False,
+        frame_period=0.5,
+        worlds=1,
+        val_frames_per_log=20,
+        val_frame_period=0.5,
+    )
     out = tmp_path_factory.mktemp("faults_prepared") / "av2"
     prepare("av2", raw / "av2" / "sensor", out, TargetOptions())
     return raw / "av2" / "sensor", out

@@ -29,7 +29,18 @@ def raw(tmp_path_factory) -> Path:
     from pipeline.synth import synth
 
     out = tmp_path_factory.mktemp("synth_ray")
-    synth(out, logs=3, frames_per_log=6, seed=1, sensors=False, frame_period=0.5, worlds=1, val_worlds=0)
+    synth(
+        out,
+        logs=3,
+        frames_per_log=6,
+        seed=1,
+        sensors=False,
+        frame_period=0.5,
+        worlds=1,
+        val_worlds=0,
+        val_frames_per_log=6,
+        val_frame_period=0.5,
+    )
     return out
 
 

@@ -29,7 +29,7 @@ def test_50x100_range_from_prepare_to_score(tmp_path_factory, model):
     root = tmp_path_factory.getbasetemp() / "range_50x100"
     data = root / "prepared"
     if not (data / "manifest.json").is_file():
-        synth(root / "raw", logs=3, frames_per_log=3, worlds=2)
+        synth(root / "raw", logs=3, frames_per_log=3, frame_period=1.0, worlds=2, val_frames_per_log=3)
         invoke("prepare", "--dataset", "av2", "--root", root / "raw/av2/sensor", "--out", data,
                "--range", "50x100")  # fmt: skip
     assert json.loads((data / "manifest.json").read_text())["range"] == {

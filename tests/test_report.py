@@ -63,7 +63,7 @@ def made(tmp_path_factory) -> dict:
     from pipeline.targets import TargetOptions
 
     root = tmp_path_factory.mktemp("report")
-    synth(root / "raw", logs=4, frames_per_log=4, seed=0, frame_period=1.0, worlds=1)
+    synth(root / "raw", logs=4, frames_per_log=4, seed=0, frame_period=1.0, worlds=1, val_frames_per_log=4)
     av2, nusc = root / "av2", root / "nusc"
     prepare("av2", root / "raw" / "av2" / "sensor", av2, TargetOptions())
     prepare("nuscenes", root / "raw" / "nuscenes", nusc, TargetOptions(), version="v1.0-mini")

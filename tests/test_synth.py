@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from pipeline.synth import synth
-from pipeline.synth.logs import MINI_TRAIN, MINI_VAL, plan_logs
+from pipeline.synth.logs import MINI_TRAIN, MINI_VAL, TRAINVAL_TRAIN, TRAINVAL_VAL, plan_logs
 from pipeline.synth.world import MAX_WORLDS, build_world
 
 SEED = 3
@@ -34,7 +34,9 @@ def world(worlds):
 def out(tmp_path_factory):
     """4 logs (3 train on worlds 0-2, 1 val on world 3) of 6 frames 1 s apart."""
     root = tmp_path_factory.mktemp("synth")
-    summary = synth(root, logs=4, frames_per_log=FRAMES, seed=SEED)
+    summary = synth(
+        root, logs=4, frames_per_log=FRAMES, seed=SEED, frame_period=1.0, val_frames_per_log=FRAMES
+    )
     assert summary["complete"]
     return root
 
@@ -247,7 +249,7 @@ def test_both_splits_drive_lanes_with_a_lane_on_their_right(seed):
     model that the ego's right is always empty, which validation then contradicts."""
     worlds = [build_world(seed, k) for k in range(MAX_WORLDS)]
     frames_inner = {"train": 0, "val": 0}
-    for plan in plan_logs(worlds, 10, 20, seed, 10**9):  # `cli synth`'s defaults: 20 frames 1 s apart
+    for plan in plan_logs(worlds, 18, 10, seed, 2 * 10**9, 1, 20, 10**9):  # `cli synth`'s defaults
         world = worlds[plan.world]
         ego = plan.ego_at(plan.frame_ns)[:, :2]
         lanes = [world.lanes[i] for i in plan.route.lanes]
@@ -327,6 +329,7 @@ def test_nuscenes_tables_load_with_official_split_names(nusc, world_of):
 
     splits = create_splits_scenes()
     assert MINI_TRAIN == splits["mini_train"] and MINI_VAL == splits["mini_val"]
+    assert TRAINVAL_TRAIN == splits["train"][: len(TRAINVAL_TRAIN)] and TRAINVAL_VAL == splits["val"][:2]
     names = [s["name"] for s in nusc.scene]
     assert names == splits["mini_train"][:3] + splits["mini_val"][:1]
     for scene in nusc.scene:
@@ -579,7 +582,7 @@ def test_nuscenes_sensors_load_through_the_devkit(nusc, out, world_of):
 
 
 def test_sensors_can_be_left_out(tmp_path):
-    synth(tmp_path, logs=2, frames_per_log=3, seed=1, sensors=False)
+    synth(tmp_path, logs=2, frames_per_log=3, seed=1, sensors=False, val_frames_per_log=3)
     assert not list((tmp_path / "av2").rglob("sensors")) and not (tmp_path / "nuscenes" / "samples").exists()
     sample_data = json.loads((tmp_path / "nuscenes" / "v1.0-mini" / "sample_data.json").read_text())
     assert {Path(d["filename"]).parent.name for d in sample_data} == {"LIDAR_TOP"}
@@ -588,7 +591,7 @@ def test_sensors_can_be_left_out(tmp_path):
 def test_same_seed_same_bytes_with_one_or_two_workers(tmp_path):
     first, again = tmp_path / "first", tmp_path / "again"
     for out, workers in ((first, 1), (again, 2)):
-        synth(out, logs=2, frames_per_log=4, seed=SEED, workers=workers)
+        synth(out, logs=2, frames_per_log=4, seed=SEED, workers=workers, val_frames_per_log=4)
     files = sorted(p.relative_to(first) for p in first.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
     assert any(name.suffix == ".jpg" for name in files) and any(name.suffix == ".bin" for name in files)
@@ -597,17 +600,34 @@ def test_same_seed_same_bytes_with_one_or_two_workers(tmp_path):
 
 
 def test_rewrites_its_own_output_and_refuses_foreign_folders(tmp_path):
-    synth(tmp_path / "a", logs=2, frames_per_log=3, seed=1, sensors=False)
+    synth(tmp_path / "a", logs=2, frames_per_log=3, seed=1, sensors=False, val_frames_per_log=3)
     synth(tmp_path / "a", logs=1, frames_per_log=3, seed=2, sensors=False)  # no stale log is left behind
     assert len(list((tmp_path / "a" / "av2" / "sensor").glob("*/*"))) == 1
     (tmp_path / "b" / "nuscenes").mkdir(parents=True)
     with pytest.raises(FileExistsError):
         synth(tmp_path / "b")
     with pytest.raises(ValueError):
-        synth(tmp_path / "c", logs=11)
+        synth(tmp_path / "c", logs=35)
     with pytest.raises(ValueError, match="--workers"):
         synth(tmp_path / "d", workers=0)
     assert not (tmp_path / "d").exists()
+
+
+def test_more_training_logs_drive_more_routes_and_leave_validation_where_it_was(worlds):
+    """`cli synth`'s default 18 logs: 16 training logs 10 frames 2 s apart drive the first 16 routes of the
+    training worlds (a roundabout driven through among them); the 2 validation logs, 20 frames 1 s apart,
+    drive the routes that the 10 logs' validation drove (a junction from an inner lane, the ring)."""
+    few = plan_logs(worlds, 10, 20, SEED, 10**9)
+    many = plan_logs(worlds, 18, 10, SEED, 2 * 10**9, 1, 20, 10**9)
+    train = [plan for plan in many if plan.split == "train"]
+    assert [plan.route for plan in train] == [worlds[k % 3].routes[k] for k in range(16)]
+    assert "roundabout_through" in {plan.route.name for plan in train}
+    assert {len(plan.frame_ns) for plan in train} == {10} and np.diff(train[0].frame_ns)[0] == 2 * 10**9
+    val_few, val_many = ([plan for plan in plans if plan.split == "val"] for plans in (few, many))
+    assert [p.route for p in val_many] == [p.route for p in val_few]
+    assert [p.route.name for p in val_many] == ["junction_straight", "roundabout_through"]
+    assert [len(p.frame_ns) for p in val_many] == [20, 20] and np.diff(val_many[0].frame_ns)[0] == 10**9
+    assert [p.scene_name for p in many] == TRAINVAL_TRAIN[:16] + TRAINVAL_VAL
 
 
 def test_a_longer_frame_period_spreads_the_frames_along_the_route(world):

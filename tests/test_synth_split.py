@@ -15,12 +15,18 @@ def test_the_constant_prior_scores_low_on_the_default_validation_frames(tmp_path
     from pipeline.synth import synth
     from pipeline.targets import TargetOptions
 
-    synth(tmp_path / "raw", sensors=False)  # the defaults: the learning checks' data, without sensors
+    summary = synth(tmp_path / "raw", sensors=False)  # the defaults: the learning checks' data, no sensors
     data = tmp_path / "prepared"
     prepare("av2", tmp_path / "raw" / "av2" / "sensor", data, TargetOptions())
     frames = read_table(data, "frames").to_pylist()
     ids = {split: [f["frame_id"] for f in frames if f["split"] == split] for split in ("train", "val")}
     assert len(ids["train"]) == 160 and len(ids["val"]) == 40
+    # 16 training logs take v1.0-trainval's scene names, so that the devkit's official splits hold them
+    assert summary["nuscenes_version"] == "v1.0-trainval"
+    nuscenes = tmp_path / "prepared_nuscenes"
+    prepare("nuscenes", tmp_path / "raw" / "nuscenes", nuscenes, TargetOptions(), version="v1.0-trainval")
+    splits = [f["split"] for f in read_table(nuscenes, "frames").to_pylist()]
+    assert (splits.count("train"), splits.count("val")) == (160, 40)
     truth = graphs_from_table(read_graph_table(data), data)
     params = MetricParams(bev_range=default_range(data))
     prior = search_constant_prior(truth, ids["train"], "train", params, tmp_path / "cache")

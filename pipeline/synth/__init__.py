@@ -1,7 +1,8 @@
 """`cli synth`: a tiny synthetic raw dataset, the same world written in the AV2 and nuScenes on-disk formats.
 
     out/av2/sensor/{train,val}/<log_id>/...   read by the av2 API
-    out/nuscenes/{v1.0-mini,maps}/...         read by nuscenes-devkit (scene names from the mini splits)
+    out/nuscenes/{v1.0-mini,maps}/...         read by nuscenes-devkit (v1.0-mini's split scene names;
+                                              v1.0-trainval's beyond 8 training logs)
 
 Logs spread over `worlds` procedural worlds (one nuScenes map location / AV2 city each); validation logs
 drive only in the last `val_worlds`, which no training log visits: a geographically disjoint split.
@@ -24,7 +25,7 @@ from rich.table import Table
 from pipeline.executor import run_local
 from pipeline.synth import av2_writer, nuscenes_map, nuscenes_writer
 from pipeline.synth.ids import token
-from pipeline.synth.logs import MINI_TRAIN, MINI_VAL, POSE_PERIOD_NS, LogPlan, plan_logs
+from pipeline.synth.logs import MAX_LOGS, POSE_PERIOD_NS, LogPlan, nuscenes_version, plan_logs
 from pipeline.synth.sensors import write_sensors
 from pipeline.synth.world import MAX_WORLDS, World, build_world
 
@@ -33,24 +34,30 @@ MARKER = "synth.json"
 
 def synth(
     out: Path,
-    logs: int = 10,
-    frames_per_log: int = 20,
+    logs: int = 18,
+    frames_per_log: int = 10,
     seed: int = 0,
     sensors: bool = True,
-    frame_period: float = 1.0,
+    frame_period: float = 2.0,
     worlds: int = 4,
     val_worlds: int = 1,
     workers: int = 1,
+    val_frames_per_log: int = 20,
+    val_frame_period: float = 1.0,
 ) -> dict:
     """Write the dataset into out (replacing an earlier synth output there) and return a summary;
     sensors=False leaves out the camera images and LiDAR sweeps (and the AV2 calibration);
-    frame_period: seconds between frames (1 s: 20 frames cover much of a route; both datasets sweep at
-    10 Hz, 0.1 s); workers: processes writing the logs, one log at a time each (the same bytes as one).
-    The defaults are the learning checks' data."""
+    frame_period: seconds between frames (2 s: 10 frames cover much of a route; both datasets sweep at
+    10 Hz, 0.1 s); val_frames_per_log and val_frame_period: the same for the validation logs;
+    workers: processes writing the logs, one log at a time each (the same bytes as one).
+    The defaults are the learning checks' data: 16 training logs x 10 frames 2 s apart, 2 validation
+    logs x 20 frames 1 s apart (more routes in training, 40 validation frames; docs/EXPERIMENTS.md)."""
     out = Path(out)
-    check_arguments(logs, frames_per_log, seed, frame_period, worlds, val_worlds, workers)
+    check_arguments(logs, frames_per_log, seed, frame_period, worlds, val_worlds, workers, val_frames_per_log,
+                    val_frame_period)  # fmt: skip
     built = [build_world(seed, k) for k in range(worlds)]
-    plans = plan_logs(built, logs, frames_per_log, seed, round(frame_period * 1e9), val_worlds)
+    plans = plan_logs(built, logs, frames_per_log, seed, round(frame_period * 1e9), val_worlds,
+                      val_frames_per_log, round(val_frame_period * 1e9))  # fmt: skip
     driven = sorted({plan.world for plan in plans})
     av2_root, nuscenes_root = out / "av2" / "sensor", out / "nuscenes"
     summary = {
@@ -58,10 +65,12 @@ def synth(
         "seed": seed,
         "frames_per_log": frames_per_log,
         "frame_period": frame_period,
+        "val_frames_per_log": val_frames_per_log,
+        "val_frame_period": val_frame_period,
         "sensors": sensors,
         "av2_root": str(av2_root.relative_to(out)),
         "nuscenes_root": str(nuscenes_root.relative_to(out)),
-        "nuscenes_version": nuscenes_writer.VERSION,
+        "nuscenes_version": nuscenes_version(plans),
         "worlds": [_world_summary(built[k], plans) for k in range(worlds)],
         "logs": [_log_summary(plan, built[plan.world]) for plan in plans],
     }
@@ -91,24 +100,33 @@ def _write_log(built: list[World], av2_root: Path, nuscenes_root: Path, sensors:
 
 
 def check_arguments(
-    logs: int, frames_per_log: int, seed: int, frame_period: float, worlds: int, val_worlds: int, workers: int
+    logs: int,
+    frames_per_log: int,
+    seed: int,
+    frame_period: float,
+    worlds: int,
+    val_worlds: int,
+    workers: int,
+    val_frames_per_log: int,
+    val_frame_period: float,
 ) -> None:
     """Refuse bad arguments before the worlds are built, each named as its `cli synth` option."""
-    most_logs = len(MINI_TRAIN) + len(MINI_VAL)
-    if not 1 <= logs <= most_logs:
-        raise ValueError(f"--logs must be 1 to {most_logs} (the nuScenes mini scene names), not {logs}")
-    if frames_per_log < 1:
-        raise ValueError(f"--frames-per-log must be at least 1, not {frames_per_log}")
+    if not 1 <= logs <= MAX_LOGS:
+        raise ValueError(f"--logs must be 1 to {MAX_LOGS} (the nuScenes scene names held here), not {logs}")
+    shapes = (("", frames_per_log, frame_period), ("val-", val_frames_per_log, val_frame_period))
+    for prefix, frames, period in shapes:
+        if frames < 1:
+            raise ValueError(f"--{prefix}frames-per-log must be at least 1, not {frames}")
+        period_ns = round(period * 1e9)
+        if period_ns <= 0 or period_ns % POSE_PERIOD_NS:
+            raise ValueError(
+                f"--{prefix}frame-period {period} is not a positive multiple of {POSE_PERIOD_NS / 1e9} s "
+                "(the pose period)"
+            )
     if seed < 0:
         raise ValueError(f"--seed must be at least 0, not {seed}")
     if workers < 1:
         raise ValueError(f"--workers must be at least 1, not {workers}")
-    period_ns = round(frame_period * 1e9)
-    if period_ns <= 0 or period_ns % POSE_PERIOD_NS:
-        raise ValueError(
-            f"--frame-period {frame_period} is not a positive multiple of {POSE_PERIOD_NS / 1e9} s "
-            "(the pose period)"
-        )
     if not 1 <= worlds <= MAX_WORLDS:
         raise ValueError(f"--worlds must be 1 to {MAX_WORLDS} (one nuScenes map location each), not {worlds}")
     if worlds > 1 and not 1 <= val_worlds < worlds:

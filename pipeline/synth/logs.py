@@ -22,7 +22,8 @@ POSE_MARGIN_NS = FRAME_PERIOD_NS  # poses start before the first frame and end a
 FIRST_LOG_S = 1_533_124_800  # 2018-08-01 12:00 UTC
 LEAD_GAP_M = 15.0  # a car drives this far ahead of the ego on its route, so that every frame has a cuboid
 
-# the official nuScenes v1.0-mini split names (nuscenes.utils.splits), so that its split machinery applies
+# the official nuScenes split names (nuscenes.utils.splits), so that its split machinery applies: the
+# v1.0-mini ones while they suffice, else the first of v1.0-trainval's
 MINI_TRAIN = [
     "scene-0061",
     "scene-0553",
@@ -34,6 +35,26 @@ MINI_TRAIN = [
     "scene-1100",
 ]
 MINI_VAL = ["scene-0103", "scene-0916"]
+TRAINVAL_TRAIN = [f"scene-{n:04d}" for n in (*range(1, 3), *range(4, 12), *range(19, 35), *range(41, 47))]
+TRAINVAL_VAL = ["scene-0003", "scene-0012"]
+VAL_LOGS = 2  # at most; a dataset of 8 logs or more has 2
+# Validation logs drive the route of their index, but no further than the default's (routes 8 and 9: a
+# junction from an inner lane and the ring), so that more training logs leave validation where it is.
+VAL_ROUTES = (8, 9)
+
+
+def nuscenes_names(train_logs: int) -> tuple[str, list[str], list[str]]:
+    """The nuScenes version and the train and val scene names of a dataset of train_logs training logs."""
+    if train_logs <= len(MINI_TRAIN):
+        return "v1.0-mini", MINI_TRAIN, MINI_VAL
+    return "v1.0-trainval", TRAINVAL_TRAIN, TRAINVAL_VAL
+
+
+def nuscenes_version(plans: list[LogPlan]) -> str:
+    return nuscenes_names(sum(plan.split == "train" for plan in plans))[0]
+
+
+MAX_LOGS = len(TRAINVAL_TRAIN) + VAL_LOGS
 
 
 @dataclass(frozen=True)
@@ -63,12 +84,10 @@ class LogPlan:
 
 
 def split_of_logs(logs: int) -> list[str]:
-    """3/4 train, the rest (1 or 2) val; bounded by the mini splits' 8 train and 2 val scene names."""
-    val = 0 if logs < 2 else min(len(MINI_VAL), max(1, logs // 4))
-    if not 1 <= logs or logs - val > len(MINI_TRAIN):
-        raise ValueError(
-            f"logs must be 1 to {len(MINI_TRAIN) + len(MINI_VAL)} (the nuScenes mini scene names)"
-        )
+    """3/4 train, the rest (1 or 2) val; at most MAX_LOGS (the scene names held here)."""
+    val = 0 if logs < 2 else min(VAL_LOGS, max(1, logs // 4))
+    if not 1 <= logs <= MAX_LOGS:
+        raise ValueError(f"logs must be 1 to {MAX_LOGS} (the nuScenes scene names held here)")
     return ["train"] * (logs - val) + ["val"] * val
 
 
@@ -94,23 +113,33 @@ def plan_logs(
     seed: int,
     frame_period_ns: int = FRAME_PERIOD_NS,
     val_worlds: int = 1,
+    val_frames_per_log: int | None = None,
+    val_frame_period_ns: int | None = None,
 ) -> list[LogPlan]:
     """frame_period_ns: time between frames, a multiple of the pose period (10 Hz by default; longer
-    periods spread the same number of frames over more of each route). With one world, training and
-    validation logs share it; with more, the last val_worlds hold the validation logs alone."""
-    if frames_per_log < 1:
-        raise ValueError("frames_per_log must be at least 1")
-    if frame_period_ns <= 0 or frame_period_ns % POSE_PERIOD_NS:
-        raise ValueError(f"the frame period must be a positive multiple of {POSE_PERIOD_NS / 1e9} s")
+    periods spread the same number of frames over more of each route); the val_ pair is the validation
+    logs' own (None: as the training logs'). With one world, training and validation logs share it;
+    with more, the last val_worlds hold the validation logs alone."""
+    shape = {"train": (frames_per_log, frame_period_ns)}
+    shape["val"] = (val_frames_per_log or frames_per_log, val_frame_period_ns or frame_period_ns)
+    for frames, period_ns in shape.values():
+        if frames < 1:
+            raise ValueError("frames_per_log must be at least 1")
+        if period_ns <= 0 or period_ns % POSE_PERIOD_NS:
+            raise ValueError(f"the frame period must be a positive multiple of {POSE_PERIOD_NS / 1e9} s")
     rng = np.random.default_rng([seed, 2])
     splits = split_of_logs(logs)
     world_of = worlds_of_logs(splits, len(worlds), val_worlds) if len(worlds) > 1 else [0] * logs
-    plans, names = [], {"train": iter(MINI_TRAIN), "val": iter(MINI_VAL)}
+    _, train_names, val_names = nuscenes_names(splits.count("train"))
+    plans, names = [], {"train": iter(train_names), "val": iter(val_names)}
     for index, (split, w) in enumerate(zip(splits, world_of, strict=True)):
         world = worlds[w]
-        route = world.routes[index % len(world.routes)]  # a different kind of route for every log
+        frames, period_ns = shape[split]
+        # a different kind of route for every log
+        route_index = min(index, VAL_ROUTES[index - splits.index("val")]) if split == "val" else index
+        route = world.routes[route_index % len(world.routes)]
         path = Path(tuple(p for lane in route.lanes for p in world.lanes[lane].path.pieces))
-        duration_s = ((frames_per_log - 1) * frame_period_ns + 2 * POSE_MARGIN_NS) * 1e-9
+        duration_s = ((frames - 1) * period_ns + 2 * POSE_MARGIN_NS) * 1e-9
         # slow down rather than run out of road
         speed = max(0.5, min(route.speed, (path.length - LEAD_GAP_M) / duration_s))
         stations = np.linspace(0.0, path.length, int(path.length / 0.25) + 1)
@@ -126,7 +155,7 @@ def plan_logs(
         pose_ns = first_ns + POSE_PERIOD_NS * np.arange(
             round(duration_s * 1e9 / POSE_PERIOD_NS) + 1, dtype=np.int64
         )
-        frame_ns = first_ns + POSE_MARGIN_NS + frame_period_ns * np.arange(frames_per_log, dtype=np.int64)
+        frame_ns = first_ns + POSE_MARGIN_NS + period_ns * np.arange(frames, dtype=np.int64)
         plans.append(
             LogPlan(
                 index,

@@ -1,4 +1,5 @@
-"""nuScenes tables (`<root>/v1.0-mini/*.json`): one log and one scene per synthetic log, one sample per frame.
+"""nuScenes tables (`<root>/v1.0-mini/*.json`; v1.0-trainval beyond mini's 8 training scenes): one log and
+one scene per synthetic log, one sample per frame.
 
 Every table that nuscenes-devkit 1.2.0 loads is written. Each sample has key-frame sample_data for
 LIDAR_TOP (and the cameras when sensors are on), each with its own ego_pose, like the real tables.
@@ -16,11 +17,10 @@ import numpy as np
 from pipeline.synth.av2_writer import yaw_quaternion
 from pipeline.synth.ids import token
 from pipeline.synth.lidar import Sweep
-from pipeline.synth.logs import Cuboid, LogPlan, frame_cuboids
+from pipeline.synth.logs import Cuboid, LogPlan, frame_cuboids, nuscenes_version
 from pipeline.synth.rig import NUSCENES_CAMERAS, NUSCENES_LIDAR
 from pipeline.synth.world import World
 
-VERSION = "v1.0-mini"
 BOSTON = timezone(timedelta(hours=-4))  # nuScenes log names carry the local time
 
 
@@ -170,9 +170,10 @@ def write_tables(
             filename=filename,
             log_tokens=log_tokens,
         )
-    (root / VERSION).mkdir(parents=True, exist_ok=True)
+    version = root / nuscenes_version(plans)
+    version.mkdir(parents=True, exist_ok=True)
     for name, records in t.records.items():
-        (root / VERSION / f"{name}.json").write_text(json.dumps(records, indent=0))
+        (version / f"{name}.json").write_text(json.dumps(records, indent=0))
 
 
 def _add_scene(t: _Tables, plan: LogPlan, channels: list[Channel], map_name: str) -> None:

@@ -466,12 +466,12 @@ def _world(seed: int, index: int, parts: _Parts, rng: np.random.Generator) -> Wo
 ROUTE_LENGTH_M = 260.0  # enough for 20 frames 1 s apart at 12 m/s, plus the lead car's gap
 
 
-# The kinds of route in the order that logs drive them (log i drives route i): the hard cases first, so
-# that a dataset of a few logs still meets them, with routes from inner lanes among them, so that
-# training and validation (the last two of the default 10 logs: a junction from an inner lane and the
-# ring) both meet an ego with a lane of its direction on its right.
+# The kinds of route in the order that logs drive them (log i drives route i; validation logs no further
+# than routes 8 and 9, pipeline/synth/logs.py): the hard cases first, so that a dataset of a few logs still
+# meets them, with routes from inner lanes among them, so that training and validation (a junction from an
+# inner lane and the ring) both meet an ego with a lane of its direction on its right.
 ROUTE_KINDS = (
-    "roundabout",  # the 8 training logs of `cli synth`'s default 10
+    "roundabout",  # the first 8 training logs
     "fork",
     "s_bend",
     "road",
@@ -479,9 +479,9 @@ ROUTE_KINDS = (
     "junction_right",
     "t_junction_turn",
     "junction_straight",
-    "junction_straight",  # its 2 validation logs
+    "junction_straight",  # the 2 validation logs (and training logs 9 and 10 of `cli synth`'s default 16)
     "roundabout_through",
-    "merge",  # more logs
+    "merge",  # more training logs
     "curve",
     "road",
 )

@@ -21,8 +21,8 @@ from rich.table import Table
 
 def prepare_synthetic(folder: Path, worlds: int = 4, seed: int = 0) -> Path:
     """`cli synth`'s default data (16 training logs x 10 frames 2 s apart, 2 validation logs x 20 frames
-    1 s apart; with 4 worlds validation drives in a world of its own, with 1 on the training roads) written and prepared (AV2 format) under folder;
-    reused when present."""
+    1 s apart; with 4 worlds validation drives in a world of its own, with 1 on the training roads)
+    written and prepared (AV2 format) under folder; reused when present."""
     from pipeline.prepare import prepare
     from pipeline.synth import synth
     from pipeline.targets import TargetOptions

@@ -307,7 +307,8 @@ class ConvBlock(nn.Sequential):
 
 class PillarEncoder(nn.Module):
     """PointPillars: a per-point linear layer on (x, y, z, intensity, offsets to the pillar mean and
-    centre), max-pooled per pillar, scattered to a grid and refined by a small 2D CNN."""
+    centre), each feature normalised first, max-pooled per pillar, scattered to a grid and refined by a
+    small 2D CNN."""
 
     def __init__(self, config: EncoderConfig):
         super().__init__()
@@ -315,6 +316,10 @@ class PillarEncoder(nn.Module):
         self.grid_h = config.bev_h * config.pillar_subdivision
         self.grid_w = config.bev_w * config.pillar_subdivision
         pillar = config.pillar_channels
+        # x and y span tens of metres, intensity 0..1: unnormalised, the paint's intensity is ~1e-4 of each
+        # channel's variance at initialisation and LiDAR-only training may not find it in 880 steps
+        # (docs/EXPERIMENTS.md, 2026-12-05, stop 41)
+        self.point_norm = nn.BatchNorm1d(9)
         self.point_net = nn.Sequential(
             nn.Linear(9, pillar, bias=False), nn.BatchNorm1d(pillar), nn.ReLU(True)
         )
@@ -348,7 +353,7 @@ class PillarEncoder(nn.Module):
         decorated = torch.cat(
             [flat, flat[:, :3] - mean, (flat[:, 0] - centre_x)[:, None], (flat[:, 1] - centre_y)[:, None]], 1
         )
-        point_features = self.point_net(decorated)
+        point_features = self.point_net(self.point_norm(decorated))
         canvas = torch.zeros(cells, point_features.shape[1], device=points.device, dtype=point_features.dtype)
         # Point features are >= 0 after the ReLU, so a zero canvas with amax is the pillar max.
         canvas = canvas.scatter_reduce(

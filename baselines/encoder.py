@@ -223,9 +223,11 @@ class CameraEncoder(nn.Module):
         self._freeze_stages()
 
     def _freeze_stages(self) -> None:
-        frozen = [self.backbone.conv1, self.backbone.bn1]
-        frozen += [getattr(self.backbone, f"layer{i}") for i in range(1, self.config.backbone_frozen_stages)]
-        for module in frozen if self.config.backbone_frozen_stages > 0 else []:
+        """mmdet's `frozen_stages`: 0 the stem (conv1, bn1), 1..4 the stem and layer1..layer{n} too; -1 none."""
+        stages = self.config.backbone_frozen_stages
+        frozen = [self.backbone.conv1, self.backbone.bn1] if stages >= 0 else []
+        frozen += [getattr(self.backbone, f"layer{i}") for i in range(1, stages + 1)]
+        for module in frozen:
             for parameter in module.parameters():
                 parameter.requires_grad_(False)
 

@@ -63,15 +63,22 @@ def time_model(preset: str, model: str, data: Path, steps: int) -> dict:
     config = resolve_config(preset, model=model)
     s = setup(config, data)
     trainer = s.trainer
+
+    def synchronise() -> None:  # a step returns before the GPU has run it
+        if cuda:
+            torch.cuda.synchronize(s.device)
+
     start = time.perf_counter()
-    for batch in s.loader:
-        trainer.train_step(batch)  # synchronises on CUDA
+    for batches in s.batches():
+        trainer.train_step(batches)
+    synchronise()
     first_epoch = time.perf_counter() - start
     times: list[float] = []
     while len(times) < steps:
-        for batch in s.loader:
+        for batches in s.batches():
             start = time.perf_counter()
-            trainer.train_step(batch)
+            trainer.train_step(batches)
+            synchronise()
             times.append(time.perf_counter() - start)
             if len(times) == steps:
                 break
@@ -92,7 +99,7 @@ def time_model(preset: str, model: str, data: Path, steps: int) -> dict:
         "model": model,
         "device": torch.cuda.get_device_name(device) if cuda else "cpu",
         "first_epoch_s": first_epoch,
-        "steps_per_epoch": len(s.loader),
+        "steps_per_epoch": s.steps_per_epoch,
         "step_s": step,
         "samples_per_s": config.train.batch_size / step,
         "s_per_1000_steps": 1000 * step,

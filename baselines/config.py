@@ -40,7 +40,7 @@ class EncoderConfig:
     backbone: BackboneName = "resnet50"
     backbone_width: int = 64  # 64 is torchvision's; pretrained weights need 64
     backbone_weights: str = ""  # local torchvision state_dict file; never downloaded
-    backbone_frozen_stages: int = 1  # stem + layer1 frozen, as MapTR
+    backbone_frozen_stages: int = 1  # as mmdet's: -1 none, 0 the stem, 1 the stem and layer1 (MapTR's)
     backbone_norm_eval: bool = True  # keep pretrained BatchNorm statistics
     feature_stride: int = 32  # the neck's output stride: 8, 16 or 32
     # Heights above the ground of the 3D points of a BEV pillar: each frame's `ground_z` (about -1.84
@@ -82,22 +82,48 @@ def _stack(a: Any, b: Any, like: Any) -> Any:
 
 @dataclass
 class DataConfig:
-    image_scale_nuscenes: float = 0.5  # image resize ratio of the paper
+    """How samples are read. The image settings come twice: for real nuScenes / AV2 and for the synthetic
+    data of `cli synth` (its images are already 1/4 and 1/8 of the real sizes, its cameras look level);
+    the loader picks by the dataset's sensor root (baselines/data.py `is_synthetic`)."""
+
+    image_scale_nuscenes: float = 0.5  # image resize ratio of the paper, on real data
     image_scale_av2: float = 0.3
-    image_divisor: int = 32  # images are padded to a multiple of this (bottom / right)
-    # fraction of each image's height cut off its top after the resize: the sky above the horizon,
-    # where no point of the BEV grid projects, costs backbone time and is never sampled
+    # fraction of each image's height cut off its top after the resize (real data: none, as the paper)
     image_crop_top: float = 0.0
+    # the synthetic images: nuScenes 400 x 225 and AV2 256 x 194 as written; smaller AV2 images lose lanes
+    # (docs/EXPERIMENTS.md, 2026-12-02), and the top 40 % is sky above the level cameras' horizon, where no
+    # point of the BEV grid projects (tests/test_camera_geometry.py): cropping it costs nothing
+    synthetic_image_scale_nuscenes: float = 0.5
+    synthetic_image_scale_av2: float = 1.0
+    synthetic_image_crop_top: float = 0.4
+    image_divisor: int = 32  # images are padded to a multiple of this (bottom / right)
     max_points: int = 120_000  # LiDAR points kept per sweep (random subset beyond)
     sensor_root: str = ""  # raw dataset root; default: the `root` in the prepared manifest.json
     cache_samples: bool = False  # keep decoded samples in memory (small datasets, many epochs)
-    num_workers: int = 4
+    num_workers: int = 4  # loader processes (persistent over epochs)
+
+    def image_settings(self, dataset: str, synthetic: bool) -> tuple[float, float]:
+        """(resize ratio, fraction of the height cut off the top) of `dataset`'s images."""
+        if synthetic:
+            nuscenes, av2 = self.synthetic_image_scale_nuscenes, self.synthetic_image_scale_av2
+            return (nuscenes if dataset == "nuscenes" else av2), self.synthetic_image_crop_top
+        scale = self.image_scale_nuscenes if dataset == "nuscenes" else self.image_scale_av2
+        return scale, self.image_crop_top
+
+
+# The paper's schedules (its implementation details, Tab. 11-12): 110 epochs on nuScenes, 24 on AV2.
+PAPER_EPOCHS = {"nuscenes": 110, "av2": 24}
 
 
 @dataclass
 class TrainConfig:
-    epochs: int = 24
-    batch_size: int = 32  # in total, over all processes
+    epochs: int = 0  # 0: the prepared dataset's schedule (PAPER_EPOCHS); run.json says which
+    batch_size: int = 32  # the effective batch: over all processes and accumulated micro-batches
+    # frames one process holds in one forward pass (0: no cap). A batch above it per process is split
+    # into `accumulate` micro-batches whose gradients add up before one optimiser step, so that one GPU
+    # runs the paper's 32 as 8 processes of 4 do.
+    max_batch_per_device: int = 0
+    accumulate: int = 0  # micro-batches per optimiser step; 0: the fewest under max_batch_per_device
     lr: float = 6e-4
     backbone_lr_mult: float = 0.1
     betas: tuple[float, float] = (0.9, 0.999)
@@ -113,6 +139,23 @@ class TrainConfig:
     threads: int = 0  # torch CPU threads; 0 keeps torch's default
     train_split: str = "train"
     val_split: str = "val"
+
+    def micro_batches(self, world_size: int) -> tuple[int, int]:
+        """(frames per forward pass, micro-batches per optimiser step) of each of `world_size` processes;
+        a batch size that does not split evenly is a ValueError naming the options."""
+        if self.batch_size % world_size:
+            raise ValueError(f"--batch-size {self.batch_size} is not divisible by {world_size} processes")
+        per_process = self.batch_size // world_size
+        accumulate = self.accumulate
+        if not accumulate:
+            cap = self.max_batch_per_device or per_process
+            splits = (k for k in range(1, per_process + 1) if per_process % k == 0)
+            accumulate = next(k for k in splits if per_process // k <= cap)
+        if per_process % accumulate:
+            raise ValueError(f"--accumulate {accumulate}: the batch of {per_process} frames per process "
+                             f"(--batch-size {self.batch_size} over {world_size} processes) does not split "
+                             f"into {accumulate} equal micro-batches")  # fmt: skip
+        return per_process // accumulate, accumulate
 
 
 @dataclass
@@ -146,9 +189,25 @@ class Config:
 
 
 def paper() -> Config:
-    """The paper's settings (Tab. 11/12): ResNet-50, 200 x 100 BEV, batch 32, 24 epochs. The presets hold
-    no model: baselines.models.resolve_config adds one and its head config."""
-    return Config(preset="paper")
+    """The paper's settings (Tab. 11/12): ResNet-50 from ImageNet weights (`--pretrained`), 200 x 100 BEV,
+    batch 32 (4 frames a forward pass: 8 GPUs' 4 each, or 8 accumulated micro-batches on one), 110
+    epochs on nuScenes and 24 on AV2. The presets hold no model: baselines.models.resolve_config adds one
+    and its head config."""
+    return Config(
+        preset="paper",
+        encoder=EncoderConfig(),
+        data=DataConfig(
+            image_scale_nuscenes=0.5,
+            image_scale_av2=0.3,
+            image_crop_top=0.0,
+            synthetic_image_scale_nuscenes=0.5,
+            synthetic_image_scale_av2=1.0,
+            synthetic_image_crop_top=0.4,
+            cache_samples=False,
+            num_workers=4,
+        ),
+        train=TrainConfig(epochs=0, batch_size=32, max_batch_per_device=4),
+    )
 
 
 def tiny() -> Config:
@@ -163,7 +222,7 @@ def tiny() -> Config:
             dropout=0.0,
             backbone="resnet18",
             backbone_width=16,
-            backbone_frozen_stages=0,
+            backbone_frozen_stages=-1,  # nothing frozen: no pretrained weights
             backbone_norm_eval=False,
             feature_stride=8,
             camera_heights=(0.0,),  # the ground itself (lane paint), on both datasets
@@ -175,16 +234,15 @@ def tiny() -> Config:
             lidar_blocks=1,
         ),
         data=DataConfig(
-            # The synthetic images are already 1/4 (nuScenes) and 1/8 (AV2) of the real sizes: 200 x 113
-            # and 256 x 194 pixels here (on real data set 0.125 for both); smaller AV2 images lose lanes
-            # (docs/EXPERIMENTS.md, 2026-12-02).
-            image_scale_nuscenes=0.5,
-            image_scale_av2=1.0,
-            # the synthetic cameras look level: the top 40 % is sky, 19-26 pixels above the horizon kept
-            # (tests/test_camera_geometry.py); no BEV point projects there: cropping it costs nothing
-            image_crop_top=0.4,
+            # real data at 1/8 of its size, as large as the synthetic images are
+            image_scale_nuscenes=0.125,
+            image_scale_av2=0.125,
+            image_crop_top=0.0,
+            synthetic_image_scale_nuscenes=0.5,  # 200 x 113
+            synthetic_image_scale_av2=1.0,  # 256 x 194
+            synthetic_image_crop_top=0.4,
             # max_points stays the default's 120,000, more than a synthetic sweep holds in the BEV range: a
-            # random 20,000 lost most of the paint's returns (docs/EXPERIMENTS.md, 2026-12-04, stop 36)
+            # random 20,000 lost most of the paint's returns (docs/EXPERIMENTS.md, 2026-12-04)
             num_workers=0,
             cache_samples=True,
         ),
@@ -197,9 +255,9 @@ def tiny() -> Config:
 
 
 def gpu() -> Config:
-    """One CUDA GPU (`make gpu-check`): the paper's 0.3 m BEV cells (and decoder sizes) on the synthetic
-    data's images (the tiny preset's scales and crop), a ResNet-18 camera branch (no pretrained weights
-    can be had here), bf16 autocast, and one schedule for every model."""
+    """One CUDA GPU (`make gpu-check`): the paper's 0.3 m BEV cells (and decoder sizes), a ResNet-18
+    camera branch (no pretrained weights can be had there), bf16 autocast, one schedule for every model;
+    the paper's image scales on real data, the synthetic images as written; loader workers, no cache."""
     return Config(
         preset="gpu",
         encoder=EncoderConfig(
@@ -208,14 +266,23 @@ def gpu() -> Config:
             bev_w=100,
             channels=256,
             backbone="resnet18",
-            backbone_frozen_stages=0,
+            backbone_frozen_stages=-1,  # nothing frozen: no pretrained weights
             backbone_norm_eval=False,
             feature_stride=8,
             camera_heights=(0.0,),
             kernel_size=(3, 3),
             max_views=2,
         ),
-        data=dataclasses.replace(tiny().data, num_workers=0),
+        data=DataConfig(
+            image_scale_nuscenes=0.5,
+            image_scale_av2=0.3,
+            image_crop_top=0.0,
+            synthetic_image_scale_nuscenes=0.5,
+            synthetic_image_scale_av2=1.0,
+            synthetic_image_crop_top=0.4,
+            cache_samples=False,
+            num_workers=8,
+        ),
         train=TrainConfig(epochs=16, batch_size=8, lr=1e-3, backbone_lr_mult=1.0, warmup_iters=100),
     )
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import zlib
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import cv2
@@ -23,6 +23,7 @@ from baselines.config import Config
 from baselines.encoder import SensorBatch
 from pipeline.camera import scaled_intrinsics
 from pipeline.io import decode_raster, read_table
+from pipeline.synth import MARKER as SYNTH_MARKER
 
 
 @dataclass
@@ -103,6 +104,13 @@ def lane_mask_from_paths(paths_unit: np.ndarray, bev_h: int, bev_w: int) -> np.n
     return mask.astype(np.int64)
 
 
+def is_synthetic(sensor_root: Path) -> bool:
+    """Whether a raw dataset root was written by `cli synth` (its marker synth.json sits at the root of
+    the output, the nuScenes root's parent and the AV2 sensor root's grandparent)."""
+    root = Path(sensor_root).resolve()
+    return any((folder / SYNTH_MARKER).is_file() for folder in (root, *root.parents[:2]))
+
+
 def dataset_range(data_dir: Path) -> tuple[tuple[float, float], tuple[float, float]] | None:
     """(x_range, y_range) in metres that a prepared dataset was cropped to (its manifest), if recorded."""
     manifest_path = Path(data_dir) / "manifest.json"
@@ -124,6 +132,7 @@ class PreparedDataset(torch.utils.data.Dataset):
         manifest_path = self.data_dir / "manifest.json"
         manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
         self.sensor_root = Path(config.data.sensor_root or manifest.get("root", self.data_dir))
+        self.synthetic = is_synthetic(self.sensor_root)
         crop = dataset_range(self.data_dir)
         model_range = (tuple(config.encoder.x_range), tuple(config.encoder.y_range))
         if crop is not None and crop != model_range:
@@ -226,12 +235,12 @@ class PreparedDataset(torch.utils.data.Dataset):
         if not cameras:
             raise ValueError(f"{frame['frame_id']}: no cameras in the prepared frame (camera modality)")
         data = self.config.data
-        scale = data.image_scale_nuscenes if frame["dataset"] == "nuscenes" else data.image_scale_av2
+        scale, crop_top = data.image_settings(frame["dataset"], self.synthetic)
         images, intrinsics, extrinsics, sizes = [], [], [], []
         for camera in cameras:
             path = self.sensor_root / camera["image_path"]
             image, scale_x, scale_y = read_image(path, scale, camera["width"], camera["height"])
-            top = int(data.image_crop_top * image.shape[0])
+            top = int(crop_top * image.shape[0])
             image = image[top:]
             k = scaled_intrinsics(np.array(camera["intrinsics"], np.float64).reshape(3, 3), scale_x, scale_y)
             k[1, 2] -= top  # the rows cut off the top move the principal point up
@@ -287,8 +296,8 @@ class Targets:
     def to(self, device: torch.device | str) -> Targets:
         def move(value):
             if isinstance(value, list):
-                return [v.to(device) for v in value]
-            return None if value is None else value.to(device)
+                return [v.to(device, non_blocking=True) for v in value]
+            return None if value is None else value.to(device, non_blocking=True)
 
         return Targets(*(move(getattr(self, f.name)) for f in fields(self)))
 
@@ -301,6 +310,22 @@ class Batch:
 
     def to(self, device: torch.device | str) -> Batch:
         return Batch(self.frame_ids, self.sensors.to(device), self.targets.to(device))
+
+    def pin_memory(self) -> Batch:
+        """The batch in page-locked memory (the DataLoader's pin_memory calls it), so that `to(device)`
+        copies asynchronously."""
+        return Batch(self.frame_ids, pinned(self.sensors), pinned(self.targets))
+
+
+def pinned(record):
+    """A dataclass of tensors, lists of tensors and None with every tensor in page-locked memory."""
+
+    def pin(value):
+        if isinstance(value, list):
+            return [v.pin_memory() for v in value]
+        return None if value is None else value.pin_memory()
+
+    return replace(record, **{f.name: pin(getattr(record, f.name)) for f in fields(record)})
 
 
 def collate(samples: list[Sample]) -> Batch:

@@ -33,7 +33,7 @@ from torch.utils.flop_counter import FlopCounterMode
 from baselines.config import Config
 from baselines.data import PreparedDataset, collate
 from baselines.floor import blind_floor, floor_margins
-from baselines.models import Built, build, load_config
+from baselines.models import Built, build, load_config, without_pretrained_weights
 from baselines.train import CHECKPOINT, amp_settings, load_checkpoint
 from benchmark.bootstrap import DRAWS, FRAME_COUNTS, add_intervals, check_draws, write_frame_counts
 from benchmark.metrics import MetricParams
@@ -54,7 +54,7 @@ from pipeline.progress import tracked
 def load_model(run_dir: Path, device: torch.device) -> tuple[Built, Config]:
     """The run's model (in eval mode on `device`) with its post-processing, and the run's config."""
     config = load_config(run_dir / "config.json")
-    built = build(config)
+    built = build(without_pretrained_weights(config))  # the checkpoint holds every weight
     path = run_dir / CHECKPOINT
     checkpoint = load_checkpoint(path)  # weights_only, checksum: a file from elsewhere cannot run code
     try:
@@ -65,7 +65,7 @@ def load_model(run_dir: Path, device: torch.device) -> tuple[Built, Config]:
             f"{path}: its weights do not fit the {config.model} model of config.json ({first})"
         ) from error
 
-    built.model.to(device).eval()
+    built.to(device).model.eval()
     return built, config
 
 
@@ -222,6 +222,7 @@ def evaluate(
         "gflops": inference.gflops,
         **inference.rates(),
         "device": torch.cuda.get_device_name(device_) if device_.type == "cuda" else "cpu",
+        "precision": f"{str(autocast_dtype).removeprefix('torch.')} autocast" if autocast_dtype else "fp32",
         "world_size": run.get("world_size", 1),  # the training's processes and batch over all of them
         "effective_batch_size": run.get("effective_batch_size", config.train.batch_size),
     }

@@ -1,7 +1,8 @@
 """One training loop for the baselines: CPU or CUDA (AMP), one process or DDP under `torchrun`.
 
 RUN_DIR gets config.json (the resolved config), run.json (data folder, processes, per-process and
-effective batch size, the dataset's target parameters), log.jsonl (one line per logged step; the losses
+effective batch size, micro-batches accumulated per step, the schedule and where its epochs came from,
+the dataset's target parameters), log.jsonl (one line per logged step; the losses
 are means over the processes) and checkpoint.pt (every epoch: model, optimiser, scheduler, scaler and
 every rank's RNG state, so that `resume=True` continues exactly where the run stopped). Only rank 0
 writes.
@@ -32,9 +33,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
 
-from baselines.config import Config
+from baselines.config import PAPER_EPOCHS, Config
 from baselines.data import Batch, PreparedDataset, collate, dataset_range
-from baselines.models import build
+from baselines.models import build, check_backbone_weights, without_pretrained_weights
 from pipeline import io
 from pipeline.manifest import check_targets, dataset_targets
 
@@ -182,13 +183,30 @@ def setup_process(config: Config) -> tuple[torch.device, int, int]:
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
         torch.cuda.set_device(device)
         torch.backends.cudnn.benchmark = True
+        # TF32 for the fp32 matrix products and convolutions that autocast leaves in fp32; the geometry
+        # (camera projection, sampling grids, curves) is not a matrix product (pipeline/camera.py)
+        torch.backends.cuda.matmul.allow_tf32 = True
+        torch.backends.cudnn.allow_tf32 = True
     else:
         device = torch.device("cpu")
     if config.train.threads:
         torch.set_num_threads(config.train.threads)
-    if config.train.batch_size % world_size:
-        raise ValueError(f"batch size {config.train.batch_size} is not divisible by {world_size} processes")
+    config.train.micro_batches(world_size)  # a batch size that does not split is refused before any work
     return device, rank, world_size
+
+
+def use_dataset_schedule(config: Config, data_dir: Path) -> str:
+    """train.epochs 0 (the paper preset) takes the paper's schedule of the prepared dataset's kind
+    (PAPER_EPOCHS); returns where the epochs came from, for run.json and the report."""
+    if config.train.epochs:
+        return "set (preset or --epochs)"
+    manifest = Path(data_dir) / "manifest.json"
+    kind = json.loads(manifest.read_text()).get("dataset") if manifest.is_file() else None
+    if kind not in PAPER_EPOCHS:
+        raise ValueError(f"{manifest}: no dataset kind (nuscenes or av2) to take the paper's schedule from: "
+                         "give --epochs")  # fmt: skip
+    config.train.epochs = PAPER_EPOCHS[kind]
+    return f"the paper's {kind} schedule"
 
 
 def use_dataset_range(config: Config, data_dir: Path, master: bool) -> None:
@@ -224,24 +242,32 @@ class Trainer:
     grad_clip: float
     step: int = 0
 
-    def train_step(self, batch: Batch) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-        """One optimiser step on one batch; returns the losses and the gradient norm before clipping."""
-        batch = batch.to(self.device)
-        dtype = self.autocast_dtype
-        with torch.autocast(self.device.type, dtype=dtype) if dtype else nullcontext():
-            outputs = self.trained(batch.sensors)
-        losses = self.criterion(outputs, batch.targets)
+    def train_step(self, batches: list[Batch]) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """One optimiser step on the micro-batches of one batch: their gradients add up, each loss weighted
+        by 1 / their number (as mmcv's GradientCumulativeOptimizerHook; one batch of them all when they
+        hold as many targets, up to BatchNorm). Returns the losses (their mean over the micro-batches,
+        detached; on the device, unsynchronised) and the gradient norm before clipping."""
         self.optimizer.zero_grad(set_to_none=True)
-        self.scaler.scale(losses["loss"]).backward()
+        dtype, weight = self.autocast_dtype, 1.0 / len(batches)
+        mean: dict[str, torch.Tensor] = {}
+        for index, batch in enumerate(batches):
+            batch = batch.to(self.device)
+            # DDP averages the gradients over the processes once, in the last micro-batch's backward
+            accumulating = index < len(batches) - 1 and isinstance(self.trained, DistributedDataParallel)
+            with self.trained.no_sync() if accumulating else nullcontext():
+                with torch.autocast(self.device.type, dtype=dtype) if dtype else nullcontext():
+                    outputs = self.trained(batch.sensors)
+                losses = self.criterion(outputs, batch.targets)
+                self.scaler.scale(losses["loss"] * weight).backward()
+            for name, value in losses.items():
+                mean[name] = mean.get(name, 0.0) + value.detach() * weight
         self.scaler.unscale_(self.optimizer)
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.grad_clip)
         self.scaler.step(self.optimizer)
         self.scaler.update()
         self.scheduler.step()
         self.step += 1
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
-        return losses, grad_norm
+        return mean, grad_norm
 
     def save(self, path: Path, epoch: int, config: Config, rng_states: list[dict]) -> None:
         checkpoint = {
@@ -303,8 +329,10 @@ class Setup:
     trainer: Trainer
     dataset: PreparedDataset
     sampler: DistributedSampler
-    loader: DataLoader
-    total_steps: int
+    loader: DataLoader  # micro-batches; `accumulate` of them make one optimiser step
+    accumulate: int
+    total_steps: int  # optimiser steps
+    schedule: str  # where the epochs came from (use_dataset_schedule)
     device: torch.device
     rank: int
     world_size: int
@@ -313,17 +341,37 @@ class Setup:
     def distributed(self) -> bool:
         return self.world_size > 1
 
+    @property
+    def steps_per_epoch(self) -> int:
+        return math.ceil(len(self.loader) / self.accumulate)
 
-def setup(config: Config, data_dir: Path) -> Setup:
-    """The process (DDP under torchrun), the BEV grid of the dataset, the model (built from the same seed
-    on every rank), the loader, the optimiser and its schedule, AMP."""
+    def batches(self):
+        """The epoch's batches, each the list of its micro-batches (the last may hold fewer)."""
+        group: list[Batch] = []
+        for batch in self.loader:
+            group.append(batch)
+            if len(group) == self.accumulate:
+                yield group
+                group = []
+        if group:
+            yield group
+
+
+def setup(config: Config, data_dir: Path, resume: bool = False) -> Setup:
+    """The process (DDP under torchrun), the BEV grid and schedule of the dataset, the model and its loss
+    on the device (built from the same seed on every rank; on resume without reading the pretrained
+    weights, which the checkpoint holds), the loader, the optimiser and its schedule, AMP."""
+    if not resume:
+        check_backbone_weights(config)
     device, rank, world_size = setup_process(config)
     train_config = config.train
     use_dataset_range(config, data_dir, rank == 0)
+    schedule = use_dataset_schedule(config, data_dir)
+    micro_batch, accumulate = train_config.micro_batches(world_size)
     # The same seed on every rank builds the same model; the ranks' streams differ from here on.
     torch.manual_seed(train_config.seed)
-    built = build(config)
-    model = built.model.to(device)
+    built = build(without_pretrained_weights(config) if resume else config).to(device)
+    model = built.model
     random.seed(train_config.seed + rank)
     np.random.seed(train_config.seed + rank)
     torch.manual_seed(train_config.seed + rank)
@@ -333,16 +381,19 @@ def setup(config: Config, data_dir: Path) -> Setup:
     sampler = DistributedSampler(
         dataset, num_replicas=world_size, rank=rank, shuffle=True, seed=train_config.seed
     )
+    workers = config.data.num_workers
     loader = DataLoader(
         dataset,
-        batch_size=train_config.batch_size // world_size,
+        batch_size=micro_batch,
         sampler=sampler,
-        num_workers=config.data.num_workers,
+        num_workers=workers,
         collate_fn=collate,
-        pin_memory=device.type == "cuda",
+        pin_memory=device.type == "cuda",  # Batch.pin_memory: asynchronous copies to the GPU
         drop_last=len(dataset) >= train_config.batch_size,
+        persistent_workers=workers > 0,
+        prefetch_factor=4 if workers > 0 else None,
     )
-    total_steps = len(loader) * train_config.epochs
+    total_steps = math.ceil(len(loader) / accumulate) * train_config.epochs
     optimizer = build_optimizer(model, config)
     scheduler = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: lr_factor(step, total_steps, config)
@@ -356,7 +407,8 @@ def setup(config: Config, data_dir: Path) -> Setup:
     trainer = Trainer(model, trained, built.loss, optimizer, scheduler,
                       torch.amp.GradScaler("cuda", enabled=needs_scaler), autocast_dtype, device,
                       train_config.grad_clip)  # fmt: skip
-    return Setup(config, trainer, dataset, sampler, loader, total_steps, device, rank, world_size)
+    return Setup(config, trainer, dataset, sampler, loader, accumulate, total_steps, schedule, device, rank,
+                 world_size)  # fmt: skip
 
 
 class RunFolder:
@@ -374,17 +426,22 @@ class RunFolder:
             raise ValueError(f"{path} holds a run already: continue it with --resume, start it afresh with "
                              "--overwrite, or choose another --out")  # fmt: skip
 
-    def start(self, config: Config, data_dir: Path, world_size: int, device: torch.device) -> int:
+    def start(self, s: Setup, data_dir: Path) -> int:
         """A new run: config.json, run.json and an empty log; returns the first epoch, 0."""
+        config = s.config
         if self.master:
             self.path.mkdir(parents=True, exist_ok=True)
             config.save(self.path / "config.json")
             run = {
                 "data": str(data_dir.resolve()),
-                "world_size": world_size,
-                "batch_per_process": config.train.batch_size // world_size,
-                "effective_batch_size": config.train.batch_size,  # processes x per-process batch
-                "device": device.type,
+                "world_size": s.world_size,
+                "batch_per_process": config.train.batch_size // s.world_size,
+                "accumulate": s.accumulate,  # micro-batches per optimiser step, in each process
+                "batch_per_forward": config.train.batch_size // s.world_size // s.accumulate,
+                "effective_batch_size": config.train.batch_size,  # processes x micro-batches x frames
+                "epochs": config.train.epochs,
+                "schedule": s.schedule,
+                "device": s.device.type,
                 "targets": dataset_targets(data_dir),  # cli eval / score / train --resume compare them
             }
             (self.path / "run.json").write_text(json.dumps(run, indent=2) + "\n")
@@ -441,23 +498,26 @@ def train_one_epoch(s: Setup, epoch: int, run: RunFolder, tally: Tally, progress
     trainer.model.train()
     s.sampler.set_epoch(epoch)
     epoch_start = last = time.perf_counter()
-    for batch in s.loader:  # the step time below includes the wait for data
-        losses, grad_norm = trainer.train_step(batch)
-        losses = mean_losses(losses, s.distributed)
+    for batches in s.batches():  # the step time below includes the wait for data
+        losses, grad_norm = trainer.train_step(batches)
         now = time.perf_counter()
         tally.seconds += now - last
         last = now
         tally.steps += 1
-        tally.loss = float(losses["loss"].detach())
         speed = tally.steps / tally.seconds
-        progress.update(task, advance=1, epoch=epoch + 1, loss=tally.loss, speed=speed)
         step = trainer.step
-        if run.master and (step % train_config.log_every == 0 or step == s.total_steps):
+        # the losses reach the host on logged steps only: a read each step would wait for the GPU
+        logged = step % train_config.log_every == 0 or step == s.total_steps
+        if logged:
+            losses = mean_losses(losses, s.distributed)  # every rank takes part
+            tally.loss = float(losses["loss"])
+        progress.update(task, advance=1, epoch=epoch + 1, loss=tally.loss, speed=speed)
+        if run.master and logged:
             run.log({
                 "step": step,
                 "epoch": epoch + 1,
                 "lr": trainer.optimizer.param_groups[0]["lr"],
-                **{k: float(v.detach()) for k, v in losses.items()},
+                **{k: float(v) for k, v in losses.items()},
                 "grad_norm": float(grad_norm),
                 "steps_per_s": speed,
                 "samples_per_s": speed * train_config.batch_size,
@@ -487,18 +547,19 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     """
     data_dir, out_dir = Path(data_dir), Path(out_dir)
     RunFolder.check_free(out_dir, resume, overwrite)
-    s = setup(config, data_dir)
+    s = setup(config, data_dir, resume)
     run = RunFolder(out_dir, master=s.rank == 0)
     if resume:
         start_epoch = run.resume(s.trainer, data_dir, s.rank)
     else:
-        start_epoch = run.start(config, data_dir, s.world_size, s.device)
+        start_epoch = run.start(s, data_dir)
     if run.master:
         parameters = sum(p.numel() for p in s.trainer.model.parameters())
         console.print(
             f"{config.model} {config.encoder.modality}: {parameters / 1e6:.2f} M parameters, "
-            f"{len(s.dataset)} frames, {len(s.loader)} steps per epoch, "
-            f"{s.world_size} process(es) on {s.device.type}"
+            f"{len(s.dataset)} frames, {s.steps_per_epoch} steps per epoch x {config.train.epochs} epochs "
+            f"({s.schedule}), batch {config.train.batch_size} = {s.world_size} process(es) x {s.accumulate} "
+            f"micro-batch(es) x {s.loader.batch_size} frames, on {s.device.type}"
         )
     run.open_log()
     tally = Tally()
@@ -515,6 +576,8 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     summary = {
         "final_loss": tally.loss,
         "steps": s.trainer.step,
+        "epochs": epochs,
+        "schedule": s.schedule,
         "train_seconds": tally.seconds,
         "steps_per_s": tally.steps / tally.seconds if tally.seconds else 0.0,
         "samples_per_s": tally.steps * batch_size / tally.seconds if tally.seconds else 0.0,

@@ -130,7 +130,8 @@ def write_toy_dataset(root: Path, frames: int = 6, split: str = "train") -> Path
 def toy_config(modality: str = "lidar", epochs: int = 2) -> Config:
     config = resolve_config("tiny")
     config.encoder.modality = modality
-    config.data.image_scale_av2 = 0.25
+    config.data.image_scale_av2 = 0.25  # the toy data is no `cli synth` output: its real-data settings
+    config.data.image_crop_top = 0.4
     config.train.epochs = epochs
     config.train.batch_size = 2
     config.train.warmup_iters = 2
@@ -162,7 +163,7 @@ def test_dataset_reads_sensors_and_targets(tmp_path):
     config = toy_config("fusion")
     dataset = PreparedDataset(data, "train", config)
     sample = dataset[0]
-    # 96 x 160 at 0.25 -> 24 x 40, the top 9 rows cut (the tiny preset's image_crop_top 0.4) -> 15 x 40,
+    # 96 x 160 at 0.25 -> 24 x 40, the top 9 rows cut (image_crop_top 0.4) -> 15 x 40,
     # padded to 32 x 64
     assert sample.images.shape == (2, 3, 32, 64)
     assert sample.image_sizes.tolist() == [[15, 40], [15, 40]]

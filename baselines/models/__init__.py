@@ -32,6 +32,29 @@ def build(config) -> Built:
     return MODELS[config.model](config)
 
 
+def without_pretrained_weights(config: Config) -> Config:
+    """A copy of `config` whose backbone starts from random weights: for a model whose every weight a
+    checkpoint then restores (cli eval, --resume), so that the pretrained file need not be where it was."""
+    encoder = dataclasses.replace(config.encoder, backbone_weights="")
+    return dataclasses.replace(config, encoder=encoder)
+
+
+def check_backbone_weights(config: Config) -> None:
+    """A camera backbone that the config expects pretrained (frozen stages, eval-mode BatchNorm: the paper
+    preset) needs its weights file: random weights frozen, or normalised by their initial statistics,
+    learn nothing there. `--from-scratch` trains every stage instead (resolve_config)."""
+    encoder = config.encoder
+    expects_weights = encoder.backbone_frozen_stages >= 0 or encoder.backbone_norm_eval
+    if encoder.modality != "lidar" and expects_weights and not encoder.backbone_weights:
+        raise ValueError(
+            f"--preset {config.preset} trains the {encoder.backbone} backbone from ImageNet weights: give "
+            "--pretrained FILE, a torchvision state dict saved where torchvision can download (python -c "
+            f'"import torch, torchvision; torch.save(torchvision.models.{encoder.backbone}(weights='
+            f"'IMAGENET1K_V1').state_dict(), '{encoder.backbone}.pth')\"), or --from-scratch to train it "
+            "from random weights"
+        )
+
+
 def head(model: str, preset: str) -> Any:
     """The head config of `model` for `preset`."""
     if model not in HEADS:
@@ -58,9 +81,12 @@ def resolve_config(
     backbone_weights: str | None = None,
     overrides: list[str] | None = None,
     model: str = "lanegap",
+    accumulate: int | None = None,
+    from_scratch: bool | None = None,
 ) -> Config:
     """A preset with the `cli train` flags (None: keep the preset's value), then `--set` overrides;
-    `model` picks the head config (`decoder`): a flag of another model's head is an error."""
+    `model` picks the head config (`decoder`): a flag of another model's head is an error. `from_scratch`
+    trains every backbone stage with batch statistics (check_backbone_weights)."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}")
     config = dataclasses.replace(PRESETS[preset](), model=model, decoder=head(model, preset))
@@ -72,6 +98,7 @@ def resolve_config(
         "--bezier-points": ("decoder.bezier_points", bezier_points),
         "--aux-seg": ("decoder.aux_seg", aux_seg),
         "--pretrained": ("encoder.backbone_weights", backbone_weights),
+        "--accumulate": ("train.accumulate", accumulate),
     }
     for flag, (name, value) in flags.items():
         if value is not None:
@@ -79,4 +106,6 @@ def resolve_config(
     apply_overrides(config, overrides or [])
     if config.encoder.modality not in ("camera", "lidar", "fusion"):
         raise ValueError(f"modality must be camera, lidar or fusion, not {config.encoder.modality!r}")
+    if from_scratch:
+        config.encoder.backbone_frozen_stages, config.encoder.backbone_norm_eval = -1, False
     return config

@@ -18,6 +18,13 @@ class Built:
     needs: frozenset[str]  # targets it trains on: "paths", "pieces" (+ links), "raster" (mask + direction)
     modeling: str  # the paper's family: "pixel", "piece" or "path"
 
+    def to(self, device) -> Built:
+        """The model and its loss on `device` together: a loss holds buffers too (piece extents, STSU's
+        Bezier inverse) that must sit beside the outputs it reads."""
+        self.model.to(device)
+        self.loss.to(device)
+        return self
+
 
 def preset_head(model: str, heads: dict, preset: str):
     """`heads[preset]()`, or a clear error naming the model and the presets it has."""

@@ -24,7 +24,47 @@ def ordered_point_cost(points: torch.Tensor, targets: torch.Tensor) -> torch.Ten
     return torch.cdist(points.flatten(1), targets.flatten(1), p=1) / points.shape[1]
 
 
+def match_cost(
+    logits: torch.Tensor, points: torch.Tensor, targets: torch.Tensor, cls_weight: float, point_weight: float,
+    alpha: float, gamma: float,
+) -> torch.Tensor:  # fmt: skip
+    """One frame: logits (Q,), points (Q, N, 2), targets (G, N, 2) -> (Q, G) matching cost."""
+    cost = cls_weight * focal_cost(logits.float(), alpha, gamma)[:, None]
+    return cost + point_weight * ordered_point_cost(points.float(), targets.float())
+
+
 @torch.no_grad()
+def match_layers(
+    logits: torch.Tensor, points: torch.Tensor, targets: list[torch.Tensor], cls_weight: float,
+    point_weight: float, alpha: float = 0.25, gamma: float = 2.0,
+) -> list[list[tuple[torch.Tensor, torch.Tensor]]]:  # fmt: skip
+    """Every decoder layer and frame at once: logits (L, B, Q), points (L, B, Q, N, 2), targets per frame
+    (G, N, 2) -> matches[layer][frame] = (query indices, target indices), on the logits' device.
+
+    The cost matrices reach scipy in one copy and the indices come back in one: a copy per layer and
+    frame would wait for the GPU each time."""
+    device = logits.device
+    layers, frames = logits.shape[:2]
+    costs = [
+        match_cost(logits[layer, frame], points[layer, frame], targets[frame], cls_weight, point_weight,
+                   alpha, gamma)
+        for layer in range(layers) for frame in range(frames)
+    ]  # fmt: skip
+    flat = torch.cat([cost.flatten() for cost in costs]).cpu().numpy()
+    rows, cols, offset = [], [], 0
+    for cost in costs:
+        size = cost.numel()
+        matrix = flat[offset : offset + size].reshape(cost.shape)
+        offset += size
+        found = linear_sum_assignment(matrix) if size else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+        rows.append(found[0])
+        cols.append(found[1])
+    sizes = [len(r) for r in rows]
+    indices = torch.from_numpy(np.concatenate(rows + cols).astype(np.int64)).to(device)
+    pairs = list(zip(indices[: sum(sizes)].split(sizes), indices[sum(sizes) :].split(sizes), strict=True))
+    return [pairs[layer * frames : (layer + 1) * frames] for layer in range(layers)]
+
+
 def hungarian_match(
     logits: torch.Tensor,
     points: torch.Tensor,
@@ -35,10 +75,5 @@ def hungarian_match(
     gamma: float = 2.0,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """One frame: logits (Q,), points (Q, N, 2), targets (G, N, 2) -> (query indices, target indices)."""
-    if targets.shape[0] == 0:
-        empty = torch.zeros(0, dtype=torch.long)
-        return empty, empty
-    cost = cls_weight * focal_cost(logits.float(), alpha, gamma)[:, None]
-    cost = cost + point_weight * ordered_point_cost(points.float(), targets.float())
-    rows, cols = linear_sum_assignment(cost.cpu().numpy())
-    return torch.as_tensor(rows, dtype=torch.long), torch.as_tensor(np.asarray(cols), dtype=torch.long)
+    return match_layers(logits[None, None], points[None, None], [targets], cls_weight, point_weight, alpha,
+                        gamma)[0][0]  # fmt: skip

@@ -21,7 +21,7 @@ from baselines.config import Config
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
 from baselines.fine_bev import fine_losses
-from baselines.matcher import hungarian_match
+from baselines.matcher import match_layers
 from baselines.query_decoder import QueryDecoder
 from baselines.raster_head import lane_head, lane_head_losses, lane_outputs, lane_probability, snap_polylines
 from benchmark.piece2graph import piece2graph, suppress_duplicates
@@ -147,20 +147,17 @@ class PieceCriterion(nn.Module):
         `repeats` times -> the weighted sum over the layers, the last layer's terms and its matches."""
         head, device = self.head, all_logits.device
         total = torch.zeros((), device=device)
-        for logits, points in zip(all_logits, all_points, strict=True):
+        all_regressed = self.geometry(all_points.float())
+        goals = [goal.repeat(repeats, 1, 1) for goal in goals]
+        all_matches = match_layers(all_logits.detach(), all_regressed.detach(), goals, head.cls_weight,
+                                   head.point_weight, head.focal_alpha, head.focal_gamma)  # fmt: skip
+        for logits, points, regressed, matches in zip(all_logits, all_points, all_regressed, all_matches,
+                                                      strict=True):  # fmt: skip
             points = points.float()
-            regressed = self.geometry(points)
             labels = torch.zeros_like(logits, dtype=torch.float32)
             point_loss = torch.zeros((), device=device)
             dir_loss = torch.zeros((), device=device)
-            matches = []
-            for frame, goal in enumerate(goals):
-                goal = goal.repeat(repeats, 1, 1)
-                rows, cols = hungarian_match(logits[frame].detach(), regressed[frame].detach(), goal,
-                                             head.cls_weight, head.point_weight, head.focal_alpha,
-                                             head.focal_gamma)  # fmt: skip
-                rows, cols = rows.to(device), cols.to(device)
-                matches.append((rows, cols))
+            for frame, (goal, (rows, cols)) in enumerate(zip(goals, matches, strict=True)):
                 labels[frame, rows] = 1.0
                 point_loss = point_loss + (regressed[frame, rows] - goal[cols]).abs().sum(-1).mean(-1).sum()
                 if self.direction_weight:

@@ -23,7 +23,7 @@ from baselines.config import Config
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
 from baselines.fine_bev import fine_losses
-from baselines.matcher import hungarian_match
+from baselines.matcher import match_layers
 from baselines.models.base import Built, QueryHeadConfig, preset_head
 from baselines.query_decoder import QueryDecoder
 from baselines.raster_head import lane_head, lane_head_losses, lane_outputs, lane_probability, snap_polylines
@@ -123,15 +123,15 @@ class LaneGAPLoss(nn.Module):
         num_targets = mean_over_processes(torch.tensor(float(sum(len(t) for t in paths)), device=device))
         num_targets = num_targets.clamp(min=1.0)
         total = torch.zeros((), device=device)
-        for logits, points in zip(logits_per_layer, points_per_layer, strict=True):
+        all_matches = match_layers(logits_per_layer.detach(), points_per_layer.detach(), paths,
+                                   config.cls_weight, config.point_weight, config.focal_alpha,
+                                   config.focal_gamma)  # fmt: skip
+        for logits, points, matches in zip(logits_per_layer, points_per_layer, all_matches, strict=True):
             labels = torch.zeros_like(logits, dtype=torch.float32)
             point_loss = torch.zeros((), device=device)
-            for frame, target in enumerate(paths):
-                rows, cols = hungarian_match(logits[frame].detach(), points[frame].detach(), target,
-                                             config.cls_weight, config.point_weight, config.focal_alpha,
-                                             config.focal_gamma)  # fmt: skip
-                labels[frame, rows.to(device)] = 1.0
-                matched = points[frame, rows.to(device)].float() - target[cols.to(device)]
+            for frame, (target, (rows, cols)) in enumerate(zip(paths, matches, strict=True)):
+                labels[frame, rows] = 1.0
+                matched = points[frame, rows].float() - target[cols]
                 point_loss = point_loss + matched.abs().sum(-1).mean(-1).sum()
             class_loss = sigmoid_focal_loss(logits.float(), labels, config.focal_alpha, config.focal_gamma)
             class_loss = class_loss / num_targets

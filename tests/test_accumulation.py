@@ -31,7 +31,9 @@ def test_k_micro_batches_give_the_update_of_one_k_times_larger_batch(synth_prepa
     losses_split, norm_split = split.train_step([collate(samples)] * 3)
     assert float(norm_whole) > 0 and float(norm_split) == pytest.approx(float(norm_whole), rel=1e-4)
     assert float(losses_split["loss"]) == pytest.approx(float(losses_whole["loss"]), rel=1e-5)
-    pairs = [(a.grad, b.grad) for a, b in zip(whole.model.parameters(), split.model.parameters(), strict=True)]
+    pairs = [
+        (a.grad, b.grad) for a, b in zip(whole.model.parameters(), split.model.parameters(), strict=True)
+    ]
     assert all((a is None) == (b is None) for a, b in pairs)
     whole_grad, split_grad = (torch.cat([p[i].flatten() for p in pairs if p[i] is not None]) for i in (0, 1))
     assert (split_grad - whole_grad).norm() < 1e-3 * whole_grad.norm()  # float32 sums in another order

@@ -1,0 +1,136 @@
+"""The CUDA path's settings that the CPU can check: the paper preset's pretrained backbone (refused
+without weights, mmdet's frozen stages), a run that no longer needs its weights file (eval, resume),
+the paper's schedule per dataset, the image settings of real and synthetic data, pinned batches and the
+FPS's precision."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from baselines.config import EncoderConfig
+from baselines.data import Batch, PreparedDataset, collate, is_synthetic
+from baselines.encoder import CameraEncoder
+from baselines.evaluate import evaluate
+from baselines.models import check_backbone_weights, load_config, resolve_config
+from baselines.resnet import build_resnet
+from baselines.train import train, use_dataset_schedule
+from benchmark.tables import eval_table
+from cli import app
+from tests.test_baselines_train import toy_config, write_toy_dataset
+
+
+def test_the_paper_preset_refuses_a_random_backbone_before_any_work(tmp_path):
+    out = tmp_path / "run"
+    args = ["train", "--data", str(tmp_path), "--out", str(out), "--model", "maptr"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 1
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and "--pretrained FILE" in lines[0] and "--from-scratch" in lines[0], lines
+    assert "resnet50(weights='IMAGENET1K_V1')" in lines[0] and not out.exists()
+    result = CliRunner().invoke(app, [*args, "--pretrained", str(tmp_path / "moved.pth")])
+    assert result.exit_code == 1 and "--pretrained " in result.output and "no such file" in result.output
+    scratch = resolve_config("paper", model="maptr", from_scratch=True)
+    assert (scratch.encoder.backbone_frozen_stages, scratch.encoder.backbone_norm_eval) == (-1, False)
+    check_backbone_weights(scratch)  # said on purpose
+    check_backbone_weights(resolve_config("paper", modality="lidar"))  # no camera, no backbone
+    check_backbone_weights(resolve_config("paper", backbone_weights="resnet50.pth"))
+    for preset in ("tiny", "gpu"):
+        check_backbone_weights(resolve_config(preset))
+
+
+@pytest.mark.parametrize(("stages", "frozen"), [(-1, []), (0, ["conv1", "bn1"]), (1, ["conv1", "bn1", "layer1"]),
+                                                (2, ["conv1", "bn1", "layer1", "layer2"])])  # fmt: skip
+def test_frozen_stages_count_as_mmdets(stages, frozen):
+    config = EncoderConfig(backbone="resnet18", backbone_width=8, bev_h=4, bev_w=2, channels=16,
+                           backbone_frozen_stages=stages)  # fmt: skip
+    backbone = CameraEncoder(config).backbone
+    for name, module in backbone.named_children():
+        trainable = {p.requires_grad for p in module.parameters()}
+        if trainable:
+            assert trainable == {name not in frozen}, name
+    assert resolve_config("paper", backbone_weights="x").encoder.backbone_frozen_stages == 1  # MapTR's
+
+
+def test_eval_and_resume_need_no_pretrained_file(tmp_path):
+    """The checkpoint holds every weight: moving the --pretrained file away breaks neither."""
+    data = write_toy_dataset(tmp_path, frames=2)
+    weights = tmp_path / "backbone.pth"
+    torch.save(build_resnet("resnet18", 16).state_dict(), weights)
+    config = toy_config("camera", epochs=1)
+    config.encoder.backbone_weights = str(weights)
+    config.train.val_split = "train"
+    run = tmp_path / "run"
+    train(config, data, run)
+    weights.rename(tmp_path / "elsewhere.pth")
+    metrics = evaluate(run, data, "train", "cpu", floor=False, bootstrap=0)
+    assert metrics["frames"] == 2 and metrics["precision"] == "fp32"
+    table, notes = eval_table(metrics)
+    assert any(note.startswith("fps: batch 1 on cpu in fp32") for note in notes)
+    resumed = load_config(run / "config.json")
+    resumed.train.epochs = 2
+    assert train(resumed, data, run, resume=True)["steps"] == 2
+
+
+def test_the_paper_schedule_is_the_datasets(tmp_path, synth_prepared):
+    for kind, epochs in (("av2", 24), ("nuscenes", 110)):
+        config = resolve_config("paper", from_scratch=True)
+        assert config.train.epochs == 0
+        assert use_dataset_schedule(config, synth_prepared[kind]) == f"the paper's {kind} schedule"
+        assert config.train.epochs == epochs
+    explicit = resolve_config("paper", epochs=3, from_scratch=True)
+    assert use_dataset_schedule(explicit, synth_prepared["nuscenes"]) == "set (preset or --epochs)"
+    assert explicit.train.epochs == 3
+    (tmp_path / "manifest.json").write_text(json.dumps({"root": "x"}))
+    with pytest.raises(ValueError, match="no dataset kind .* give --epochs"):
+        use_dataset_schedule(resolve_config("paper", from_scratch=True), tmp_path)
+
+
+def test_real_data_gets_the_papers_image_scales_and_synthetic_data_its_own(
+    synth_raw, synth_prepared, tmp_path
+):
+    assert is_synthetic(synth_raw / "av2" / "sensor") and is_synthetic(synth_raw / "nuscenes")
+    assert not is_synthetic(write_toy_dataset(tmp_path).parent / "raw")
+    for preset in ("paper", "gpu"):
+        data = resolve_config(preset, from_scratch=True).data
+        assert data.image_settings("nuscenes", False) == (0.5, 0.0)  # the paper's, uncropped
+        assert data.image_settings("av2", False) == (0.3, 0.0)
+        assert data.image_settings("av2", True) == (1.0, 0.4)  # the synthetic images as written
+    gpu = resolve_config("gpu").data
+    assert not gpu.cache_samples and gpu.num_workers > 0
+    config = resolve_config("gpu", modality="camera")
+    dataset = PreparedDataset(synth_prepared["av2"], "train", config)
+    assert dataset.synthetic
+    sample = dataset[0]
+    for camera, size in zip(
+        dataset.frames[0]["cameras"], sample.image_sizes, strict=True
+    ):  # scale 1, crop 40 %
+        assert size.tolist() == [camera["height"] - int(0.4 * camera["height"]), camera["width"]]
+
+
+def test_a_batch_pins_every_tensor(monkeypatch, tmp_path):
+    """DataLoader(pin_memory=True) calls Batch.pin_memory: every tensor of the sensors and targets."""
+    pinned = []
+    monkeypatch.setattr(torch.Tensor, "pin_memory", lambda self: pinned.append(self) or self)
+    dataset = PreparedDataset(write_toy_dataset(tmp_path, frames=2), "train", toy_config("fusion"))
+    batch = collate([dataset[0], dataset[1]])
+    assert isinstance(batch.pin_memory(), Batch)
+    tensors = [v for v in vars(batch.sensors).values() if isinstance(v, torch.Tensor)]
+    tensors += [batch.targets.seg, *batch.targets.paths]
+    assert len(tensors) == 10 and {id(t) for t in tensors} <= {id(t) for t in pinned}
+
+
+def test_run_json_says_the_schedule_and_the_accumulation(tmp_path):
+    data = write_toy_dataset(tmp_path, frames=4)
+    config = toy_config("lidar", epochs=1)
+    config.train.batch_size, config.train.accumulate = 4, 2
+    summary = train(config, data, tmp_path / "run")
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert (run["accumulate"], run["batch_per_forward"], run["effective_batch_size"]) == (2, 2, 4)
+    assert run["epochs"] == 1 and run["schedule"] == "set (preset or --epochs)"
+    assert summary["steps"] == 1  # 4 frames, one optimiser step of two micro-batches
+    assert Path(tmp_path / "run" / "checkpoint.pt").is_file()

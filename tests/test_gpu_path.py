@@ -43,8 +43,12 @@ def test_the_paper_preset_refuses_a_random_backbone_before_any_work(tmp_path):
         check_backbone_weights(resolve_config(preset))
 
 
-@pytest.mark.parametrize(("stages", "frozen"), [(-1, []), (0, ["conv1", "bn1"]), (1, ["conv1", "bn1", "layer1"]),
-                                                (2, ["conv1", "bn1", "layer1", "layer2"])])  # fmt: skip
+STEM = ["conv1", "bn1"]
+
+
+@pytest.mark.parametrize(
+    ("stages", "frozen"), [(-1, []), (0, STEM), (1, [*STEM, "layer1"]), (2, [*STEM, "layer1", "layer2"])]
+)
 def test_frozen_stages_count_as_mmdets(stages, frozen):
     config = EncoderConfig(backbone="resnet18", backbone_width=8, bev_h=4, bev_w=2, channels=16,
                            backbone_frozen_stages=stages)  # fmt: skip

@@ -7,10 +7,15 @@ sensors (its TOPO F1 minus with another log's sensors) by >= 0.15 and beats the 
 hindsight by >= 0.15 TOPO F1; LaneGAP reaches 0.5 TOPO F1; the whole run takes at most 10 minutes.
 Whether LaneGAP leads on Junction TOPO F1 (the paper's claim) is reported either way.
 
+Epochs: with `--bench` (the bench_step.json of `python -m baselines.bench_step --preset gpu`, run first on
+the same GPU), each model gets as many epochs as its measured step time fits into its share of
+`--train-seconds`, at most the gpu preset's; else the preset's.
+
 `--smoke` (`make gpu-smoke`, in CI): the same commands and code path on tiny data, one epoch per model,
 on whatever device there is; it fails unless every output exists and every score is finite.
 
-    python -m baselines.gpu_check [--out gpu_check] [--smoke] [--epochs N]
+    python -m baselines.gpu_check [--out gpu_check] [--smoke] [--epochs N] [--bench bench_step.json]
+        [--train-seconds 270]
 """
 
 from __future__ import annotations
@@ -61,11 +66,32 @@ def cli(*args: str) -> None:
     PHASES.append((" ".join(args[:3]), time.perf_counter() - start))
 
 
+def sized_epochs(bench: Path, prepared: Path, train_seconds: float) -> dict[str, int]:
+    """Each model's epochs: as many as its measured step time (bench_step.json) fits into an equal share
+    of `train_seconds` on the prepared data, at least 1 and at most the gpu preset's."""
+    from baselines.config import gpu
+    from pipeline.io import read_table
+
+    preset = gpu().train
+    frames = read_table(prepared, "frames", columns=["split"])["split"].to_pylist().count(preset.train_split)
+    steps_per_epoch = max(1, frames // preset.batch_size)
+    share = train_seconds / len(MODELS)
+    epochs = {}
+    for row in json.loads(bench.read_text()):
+        fitting = int(share // (row["step_s"] * steps_per_epoch))
+        epochs[row["model"]] = max(1, min(preset.epochs, fitting))
+    missing = [model for model in MODELS if model not in epochs]
+    if missing:
+        raise SystemExit(f"--bench {bench}: no step time of {', '.join(missing)}")
+    return epochs
+
+
 def contract_row(model: str, run: Path) -> dict:
     """The figures of one evaluated run: directed F1s, the sensor gap, the margin over the best constant,
     training speed and GPU memory."""
     metrics = json.loads((run / "metrics.json").read_text())
-    summary = json.loads((run / "run.json").read_text()).get("summary", {})
+    record = json.loads((run / "run.json").read_text())
+    summary = record.get("summary", {})
     floor = metrics["floor"]
     directed = {m: metrics["directed"][m]["f1"] for m in ("topo", "junction_topo")}
     other = floor["other_log_sensors"]["directed"]["topo"]["f1"]
@@ -77,6 +103,7 @@ def contract_row(model: str, run: Path) -> dict:
         "sensor_gap": directed["topo"] - other,
         "over_best_constant": directed["topo"] - best["topo"]["f1"],
         "best_constant": best["topo"]["f1"],
+        "epochs": record.get("epochs"),
         "samples_per_s": summary.get("samples_per_s", float("nan")),
         "gpu_memory_gib": summary.get("gpu_memory_gib", float("nan")),
         "device": metrics.get("device", "?"),
@@ -120,10 +147,18 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("gpu_check"))
     parser.add_argument("--smoke", action="store_true", help="tiny data, one epoch per model, any device")
-    parser.add_argument("--epochs", type=int, help="default: the gpu preset's (1 with --smoke)")
+    parser.add_argument("--epochs", type=int, help="every model's epochs (default: sized by --bench, else "
+                        "the gpu preset's; 1 with --smoke)")  # fmt: skip
+    parser.add_argument("--bench", type=Path, help="bench_step.json of this GPU: size each model's epochs")
+    parser.add_argument("--train-seconds", type=float, default=270.0, help="the four trainings' time "
+                        "together, for the epochs sized by --bench")  # fmt: skip
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="cli synth's and prepare's "
                         "processes (default: one per core)")  # fmt: skip
     args = parser.parse_args()
+    if args.bench is not None and not args.bench.is_file():
+        parser.error(
+            f"--bench {args.bench}: no such file (python -m baselines.bench_step --preset gpu writes it)"
+        )
 
     start = time.perf_counter()
     out = args.out.resolve()
@@ -134,10 +169,13 @@ def main() -> int:
     cli("synth", "--out", str(out / "raw"), *(f"--{key}={value}" for key, value in data.items()), workers)
     prepared, sensor = out / "prepared", out / "raw" / "av2" / "sensor"
     cli("prepare", "--dataset", "av2", "--root", str(sensor), "--out", str(prepared), workers)
-    epochs = args.epochs or (1 if args.smoke else None)
+    epochs = {model: args.epochs or (1 if args.smoke else None) for model in MODELS}
+    if args.bench is not None and not args.epochs and not args.smoke:
+        epochs = sized_epochs(args.bench, prepared, args.train_seconds)
+        console.print(f"epochs sized from {args.bench}: {epochs}")
     for model in MODELS:
         run = out / "runs" / model
-        schedule = ["--epochs", str(epochs)] if epochs else []
+        schedule = ["--epochs", str(epochs[model])] if epochs[model] else []
         cli(
             "train",
             "--model",
@@ -156,12 +194,12 @@ def main() -> int:
 
     rows = [contract_row(model, out / "runs" / model) for model in MODELS]
     table = Table(title=f"gpu preset on synthetic data, {rows[0]['device']}: {seconds:.0f} s in all")
-    for column in ("model", "TOPO F1", "J-TOPO F1", "sensor gap", "best constant", "over it", "samples/s",
-                   "GPU GiB"):  # fmt: skip
+    for column in ("model", "epochs", "TOPO F1", "J-TOPO F1", "sensor gap", "best constant", "over it",
+                   "samples/s", "GPU GiB"):  # fmt: skip
         table.add_column(column, justify="left" if column == "model" else "right")
     for row in rows:
-        table.add_row(row["model"], *(f"{row[k]:.3f}" for k in ("topo", "junction_topo", "sensor_gap",
-                      "best_constant", "over_best_constant")), f"{row['samples_per_s']:.2f}",
+        table.add_row(row["model"], str(row["epochs"]), *(f"{row[k]:.3f}" for k in ("topo", "junction_topo",
+                      "sensor_gap", "best_constant", "over_best_constant")), f"{row['samples_per_s']:.2f}",
                       f"{row['gpu_memory_gib']:.1f}")  # fmt: skip
     console.print(table)
     best = max(row["junction_topo"] for row in rows)

@@ -138,3 +138,18 @@ def test_run_json_says_the_schedule_and_the_accumulation(tmp_path):
     assert run["epochs"] == 1 and run["schedule"] == "set (preset or --epochs)"
     assert summary["steps"] == 1  # 4 frames, one optimiser step of two micro-batches
     assert Path(tmp_path / "run" / "checkpoint.pt").is_file()
+
+
+def test_the_gpu_check_sizes_each_models_epochs_from_its_step_time(synth_prepared, tmp_path):
+    from baselines.gpu_check import MODELS, sized_epochs
+
+    # the synthetic av2 train split: its frames at the gpu preset's batch of 8 make its steps per epoch
+    frames = len(PreparedDataset(synth_prepared["av2"], "train", resolve_config("gpu", modality="lidar")))
+    steps = frames // 8
+    step_s = {"lanegap": 0.1, "hdmapnet": 0.05, "maptr": 10.0, "stsu": 1e-4}
+    bench = tmp_path / "bench_step.json"
+    bench.write_text(json.dumps([{"model": m, "step_s": step_s[m]} for m in MODELS]))
+    epochs = sized_epochs(bench, synth_prepared["av2"], train_seconds=4 * 30.0)
+    assert epochs["lanegap"] == min(16, int(30 // (0.1 * steps)))
+    assert epochs["hdmapnet"] == min(16, int(30 // (0.05 * steps)))
+    assert (epochs["maptr"], epochs["stsu"]) == (1, 16)  # at least one, at most the gpu preset's

@@ -100,7 +100,7 @@ class DataConfig:
     max_points: int = 120_000  # LiDAR points kept per sweep (random subset beyond)
     sensor_root: str = ""  # raw dataset root; default: the `root` in the prepared manifest.json
     cache_samples: bool = False  # keep decoded samples in memory (small datasets, many epochs)
-    num_workers: int = 4  # loader processes (persistent over epochs)
+    num_workers: int = 4  # loader processes (persistent over epochs), at most one per core
 
     def image_settings(self, dataset: str, synthetic: bool) -> tuple[float, float]:
         """(resize ratio, fraction of the height cut off the top) of `dataset`'s images."""

@@ -17,6 +17,7 @@ and so is a damaged checkpoint or one that would need unpickling (baselines/trai
 from __future__ import annotations
 
 import json
+import os
 import time
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -198,7 +199,8 @@ def evaluate(
     check_targets(run.get("targets", {}), data_dir, f"the run {run_dir}")
     split = split or config.train.val_split
     dataset = PreparedDataset(data_dir, split, config, built.needs)
-    loader = DataLoader(dataset, batch_size=1, num_workers=config.data.num_workers, collate_fn=collate)
+    workers = min(config.data.num_workers, os.cpu_count() or 1)
+    loader = DataLoader(dataset, batch_size=1, num_workers=workers, collate_fn=collate)
     autocast_dtype, _ = amp_settings(device_, config.train.amp)
     warmup_frames = min(warmup_frames, len(dataset) - 1)  # time at least one frame
     inference = predict(built, loader, device_, autocast_dtype, warmup_frames, f"predict {split}")

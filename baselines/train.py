@@ -381,7 +381,7 @@ def setup(config: Config, data_dir: Path, resume: bool = False) -> Setup:
     sampler = DistributedSampler(
         dataset, num_replicas=world_size, rank=rank, shuffle=True, seed=train_config.seed
     )
-    workers = config.data.num_workers
+    workers = min(config.data.num_workers, os.cpu_count() or 1)
     loader = DataLoader(
         dataset,
         batch_size=micro_batch,

@@ -107,6 +107,7 @@ class Run:
     counts: np.ndarray | None = None  # per-frame metric sums (bootstrap.FRAME_COUNTS); None: see no_counts
     no_counts: str = ""  # why a scored run has no per-frame counts (so no intervals)
     intervals: dict | None = None  # {mode: {metric: [low, high]}} of each F1, drawn for its block
+    info: dict = field(default_factory=dict)  # run.json: processes, accumulation, schedule
 
     @property
     def scored(self) -> bool:
@@ -278,6 +279,7 @@ def load_run(path: Path, name: str) -> Run:
     if metrics is None and not reasons:
         reasons.append("no metrics.json")
     run = Run(path, name, metrics, config, data, dataset, split, info.get("world_size"), log, reasons)
+    run.info = info
     if metrics is not None:
         load_counts(run)
     return run
@@ -432,16 +434,22 @@ def main_table(block: Block) -> tuple[list[str], list[list[str]]]:
 
 
 def settings_table(block: Block) -> tuple[list[str], list[list[str]]]:
-    header = ["run", "device", "preset", "epochs trained / set", "batch size (total)", "processes", "split"]
+    header = ["run", "device", "precision", "preset", "epochs trained / set", "schedule",
+              "batch size (total)", "processes x micro-batches x frames", "split"]  # fmt: skip
     rows = []
     for run in block.runs:
         config = run.config or {}
         train = config.get("train", {})
         trained = max((entry.get("epoch", 0) for entry in run.log), default=None)
+        info, metrics = run.info, run.metrics or {}
+        split_batch = "–"
+        if "batch_per_forward" in info:
+            split_batch = f"{info['world_size']} x {info['accumulate']} x {info['batch_per_forward']}"
+        epochs = f"{trained if trained is not None else '–'} / {train.get('epochs', '–')}"
         rows.append([
-            run.name, str((run.metrics or {}).get("device", "–")), str(config.get("preset", "–")),
-            f"{trained if trained is not None else '–'} / {train.get('epochs', '–')}",
-            str(train.get("batch_size", "–")), str(run.world_size or "–"), str(run.split or "–"),
+            run.name, str(metrics.get("device", "–")), str(metrics.get("precision", "–")),
+            str(config.get("preset", "–")), epochs, str(info.get("schedule", "–")),
+            str(train.get("batch_size", "–")), split_batch, str(run.split or "–"),
         ])  # fmt: skip
     return header, rows
 

@@ -181,7 +181,8 @@ def test_floor_rows_and_settings(made):
     for (mode, metric, stat), cell in zip(SCORE_KEYS, row[4:16]):
         assert abs(number(cell) - 100 * prior[mode][metric][stat]) <= 0.05 + 1e-9
     _, settings = first_table(av2.split("sensor-blind floor")[-1])
-    row = ["lanegap_lidar", "cpu", "fp32", "tiny", "1 / 1", "set (preset or --epochs)", "2", "1 x 1 x 2", "val"]
+    schedule = "set (preset or --epochs)"
+    row = ["lanegap_lidar", "cpu", "fp32", "tiny", "1 / 1", schedule, "2", "1 x 1 x 2", "val"]
     assert row in settings  # the preset's batch, one process, one micro-batch
     assert "evaluated with `--no-floor`" in section(made["text"], NUSC)
 

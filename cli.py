@@ -295,9 +295,7 @@ def train(
     \b
     Examples:
       cli train --model lanegap --data prepared/av2 --out runs/lanegap --preset tiny
-      cli train --model maptr --data prepared/av2 --out runs/maptr --pretrained resnet50.pth
-      torchrun --nproc_per_node 8 -m cli train --model maptr --data prepared/av2 --out runs/maptr \\
-          --pretrained resnet50.pth
+      torchrun --nproc_per_node 8 -m cli train --model maptr --data prep --out runs/maptr --pretrained r50.pth
     """
     from baselines.config import apply_overrides
     from baselines.models import load_config, resolve_config

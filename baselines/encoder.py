@@ -223,7 +223,7 @@ class CameraEncoder(nn.Module):
         self._freeze_stages()
 
     def _freeze_stages(self) -> None:
-        """mmdet's `frozen_stages`: 0 the stem (conv1, bn1), 1..4 the stem and layer1..layer{n} too; -1 none."""
+        """mmdet's `frozen_stages`: -1 none, 0 the stem (conv1, bn1), n the stem and layer1..layer{n}."""
         stages = self.config.backbone_frozen_stages
         frozen = [self.backbone.conv1, self.backbone.bn1] if stages >= 0 else []
         frozen += [getattr(self.backbone, f"layer{i}") for i in range(1, stages + 1)]

@@ -3,6 +3,7 @@ Bernstein matrix of Bezier curves and the loss normaliser over processes."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -39,11 +40,28 @@ def sigmoid_focal_loss(
     return (alpha_t * (1 - p_t) ** gamma * ce).sum()
 
 
+@functools.lru_cache(maxsize=64)
+def _constant(values: tuple, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    return torch.tensor(values, dtype=dtype, device=device)
+
+
+def constant(values, device: torch.device | str, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """A small tensor of Python values (nested tuples or lists) on `device`, made once per values and
+    device: made anew each step, it is a copy from the host that waits for the GPU to catch up. Read only."""
+    freeze = lambda v: tuple(freeze(x) for x in v) if isinstance(v, list | tuple) else v  # noqa: E731
+    return _constant(freeze(values), dtype, torch.device(device))
+
+
+def count(value: float, device: torch.device | str) -> torch.Tensor:
+    """A 0-d float tensor of a count known on the host: filled on the device, no copy, no wait."""
+    return torch.full((), float(value), device=device)
+
+
 def bernstein_basis(t: torch.Tensor, num_controls: int) -> torch.Tensor:
     """Parameters t (..., n) in [0, 1] -> (..., n, K) Bernstein basis of degree K - 1."""
     degree = num_controls - 1
     k = torch.arange(num_controls, dtype=t.dtype, device=t.device)
-    binomial = t.new_tensor([math.comb(degree, j) for j in range(num_controls)])
+    binomial = constant([math.comb(degree, j) for j in range(num_controls)], t.device, t.dtype)
     t = t.unsqueeze(-1)
     return binomial * t**k * (1 - t) ** (degree - k)
 

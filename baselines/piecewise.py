@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from baselines.blocks import mean_over_processes, mlp, sigmoid_focal_loss
+from baselines.blocks import count, mean_over_processes, mlp, sigmoid_focal_loss
 from baselines.config import Config
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
@@ -101,7 +101,7 @@ def association_loss(
         pieces = len(targets.pieces[frame])
         labels.append(association_targets(cols, targets.piece_links[frame], pieces).flatten())
     pair_logits, labels = torch.cat(pair_logits).float(), torch.cat(labels)
-    pairs, positives = mean_over_processes(torch.stack([labels.new_tensor(len(labels)), labels.sum()]))
+    pairs, positives = mean_over_processes(torch.stack([count(len(labels), labels.device), labels.sum()]))
     pos_weight = ((pairs - positives) / positives.clamp(min=1.0)).clamp(1.0, max_pos_weight)
     loss = F.binary_cross_entropy_with_logits(pair_logits, labels, pos_weight=pos_weight, reduction="sum")
     return loss / pairs.clamp(min=1.0)
@@ -164,11 +164,11 @@ class PieceCriterion(nn.Module):
                     target = targets.pieces[frame][cols % len(targets.pieces[frame])].float()
                     dir_loss = dir_loss + direction_loss(points[frame, rows], target, self.extent)
             class_loss = sigmoid_focal_loss(logits.float(), labels, head.focal_alpha, head.focal_gamma)
-            count = num_targets * repeats
-            terms = {"cls": class_loss / count, "points": point_loss / count}
+            normaliser = num_targets * repeats
+            terms = {"cls": class_loss / normaliser, "points": point_loss / normaliser}
             total = total + head.cls_weight * terms["cls"] + head.point_weight * terms["points"]
             if self.direction_weight:
-                terms["direction"] = dir_loss / count
+                terms["direction"] = dir_loss / normaliser
                 total = total + self.direction_weight * terms["direction"]
         return total, terms, matches
 
@@ -176,8 +176,8 @@ class PieceCriterion(nn.Module):
         head = self.head
         device = outputs["logits"].device
         goals = [self.target_geometry(p.float()) for p in targets.pieces]
-        count = torch.tensor(float(sum(len(p) for p in targets.pieces)), device=device)
-        num_targets = mean_over_processes(count).clamp(min=1.0)
+        pieces = count(sum(len(p) for p in targets.pieces), device)
+        num_targets = mean_over_processes(pieces).clamp(min=1.0)
         total, terms, matches = self.set_losses(
             outputs["logits"], outputs["points"], goals, targets, num_targets
         )

@@ -12,14 +12,14 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from baselines.blocks import mean_over_processes
+from baselines.blocks import constant, mean_over_processes
 from pipeline.raster import direction_vectors
 
 
 def direction_targets(bins: torch.Tensor, direction_bins: int = 36) -> torch.Tensor:
     """Direction bins (B, H, W) -> (B, 2, H, W) unit (cos, sin) of each bin's centre angle in the BEV
     frame; zero where there is no lane (bin 0)."""
-    vectors = torch.as_tensor(direction_vectors(direction_bins), dtype=torch.float32, device=bins.device)
+    vectors = constant(direction_vectors(direction_bins).tolist(), bins.device)
     return vectors[bins.long()].permute(0, 3, 1, 2)
 
 
@@ -63,7 +63,7 @@ def raster_losses(
     averaged over the lane cells)."""
     lane, target = pooled_targets(mask, bins, tuple(seg.shape[-2:]), direction_bins, adaptive)
     logits = seg.float()
-    class_weight = torch.tensor([1.0, lane_class_weight], device=logits.device)
+    class_weight = constant([1.0, lane_class_weight], logits.device)
     on_lane = (target.abs().sum(1, keepdim=True) > 0).float()
     # Both normalised by their counts over all processes, so that DDP trains as one process would.
     weights, lane_cells = mean_over_processes(torch.stack([class_weight[lane].sum(), on_lane.sum()]))

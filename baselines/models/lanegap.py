@@ -18,7 +18,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from baselines.blocks import mean_over_processes, sigmoid_focal_loss
+from baselines.blocks import count, mean_over_processes, sigmoid_focal_loss
 from baselines.config import Config
 from baselines.data import Targets
 from baselines.encoder import BEVEncoder, SensorBatch
@@ -120,7 +120,7 @@ class LaneGAPLoss(nn.Module):
         logits_per_layer, points_per_layer = outputs["logits"], outputs["points"]
         device = logits_per_layer.device
         # Normalise by the number of ground-truth paths over all processes (as DETR).
-        num_targets = mean_over_processes(torch.tensor(float(sum(len(t) for t in paths)), device=device))
+        num_targets = mean_over_processes(count(sum(len(t) for t in paths), device))
         num_targets = num_targets.clamp(min=1.0)
         total = torch.zeros((), device=device)
         all_matches = match_layers(logits_per_layer.detach(), points_per_layer.detach(), paths,

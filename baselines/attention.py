@@ -10,8 +10,9 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as F
 from torch import nn
+
+from baselines.blocks import constant, fp32_grid_sample
 
 
 def deformable_sample(
@@ -27,8 +28,10 @@ def deformable_sample(
     per_level = []
     for level, value in enumerate(values):
         grid = grids[:, :, :, level].permute(0, 2, 1, 3, 4).reshape(batch * heads, num_queries, samples, 2)
+        # fp32 out, as CUDA's autocast gave it (promoting the bf16 values to the fp32 grid): the weighted
+        # sum over the samples below stays in fp32
         per_level.append(
-            F.grid_sample(value, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+            fp32_grid_sample(value, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
         )
     sampled = torch.stack(per_level, dim=-2)  # (B * heads, head_dim, Nq, L, S)
     w = weights.permute(0, 2, 1, 3, 4).reshape(batch * heads, 1, num_queries, levels, samples)
@@ -85,13 +88,11 @@ class DeformableAttention(nn.Module):
             projected = self.value_proj(value.flatten(2).transpose(1, 2))  # (B, HW, C)
             head_values.append(projected.transpose(1, 2).reshape(batch * heads, dim // heads, height, width))
         offsets = self.sampling_offsets(query).view(batch, num_queries, heads, levels, anchors, points, 2)
-        sizes = torch.tensor(
-            [[v.shape[-1], v.shape[-2]] for v in values], dtype=query.dtype, device=query.device
-        )
-        # Offsets are in pixels of each level, so a unit step is one feature cell at every scale.
-        locations = reference.view(batch, num_queries, 1, 1, anchors, 1, 2) + offsets / sizes.view(
-            1, 1, 1, levels, 1, 1, 2
-        )
+        sizes = constant([[v.shape[-1], v.shape[-2]] for v in values], query.device)
+        # Offsets are in pixels of each level, so a unit step is one feature cell at every scale. In fp32
+        # whatever the query's dtype: bf16 would round the map's sizes and the sampling positions.
+        anchor = reference.float().view(batch, num_queries, 1, 1, anchors, 1, 2)
+        locations = anchor + offsets.float() / sizes.view(1, 1, 1, levels, 1, 1, 2)
         weights = self.attention_weights(query).view(batch, num_queries, heads, levels * anchors * points)
         weights = weights.softmax(-1).view(batch, num_queries, heads, levels, anchors * points)
         locations = locations.view(batch, num_queries, heads, levels, anchors * points, 2)

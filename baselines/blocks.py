@@ -1,10 +1,12 @@
 """Small building blocks that several models share: MLP, feed-forward, inverse sigmoid, focal loss, the
-Bernstein matrix of Bezier curves and the loss normaliser over processes."""
+Bernstein matrix of Bezier curves, the fp32 geometry under autocast and the loss normaliser over
+processes."""
 
 from __future__ import annotations
 
 import functools
 import math
+from contextlib import nullcontext
 
 import torch
 import torch.distributed as dist
@@ -71,6 +73,20 @@ def bernstein_matrix(num_points: int, num_controls: int) -> torch.Tensor:
     `matrix @ controls` samples the curve at N evenly spaced parameters (LaneGAP Eq. 2)."""
     t = torch.linspace(0, 1, num_points, dtype=torch.float64)
     return bernstein_basis(t, num_controls).float()
+
+
+def fp32_grid_sample(values: torch.Tensor, grid: torch.Tensor, **kwargs) -> torch.Tensor:
+    """F.grid_sample with the values and the grid in fp32 whatever autocast is on: CUDA's runs it in bf16
+    when both come in bf16, rounding the sampling positions and summing the backward's samples in bf16."""
+    device = values.device.type  # autocast knows no meta device (tests/test_device_placement.py)
+    with torch.autocast(device, enabled=False) if torch.amp.is_autocast_available(device) else nullcontext():
+        return F.grid_sample(values.float(), grid.float(), **kwargs)
+
+
+def combine_points(weights: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """weights (M, N) @ points (..., N, D) -> (..., M, D) in fp32, as a sum of products: a matrix product
+    runs in bf16 under autocast, and in TF32 on a GPU that allows it (baselines/train.py)."""
+    return (weights.float()[..., None] * points.float().unsqueeze(-3)).sum(-2)
 
 
 def mean_over_processes(counts: torch.Tensor) -> torch.Tensor:

@@ -20,7 +20,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from baselines.attention import DeformableAttention
-from baselines.blocks import FeedForward
+from baselines.blocks import FeedForward, fp32_grid_sample
 from baselines.config import EncoderConfig
 from baselines.resnet import build_resnet
 from pipeline.camera import project_points
@@ -272,7 +272,9 @@ class CameraEncoder(nn.Module):
         grid = grid.view(num_batch, views, num_queries, num_heights, kernel, 3).permute(0, 2, 3, 1, 4, 5)
         grid = grid.reshape(num_batch, num_queries, num_heights * views * kernel, 1, 3)
         volume = features.transpose(1, 2)  # (B, C, Ncam, Hf, Wf)
-        sampled = F.grid_sample(volume, grid.to(volume.dtype), mode="bilinear", align_corners=True)
+        # Sampled in fp32 (blocks.fp32_grid_sample); returned in the features' dtype, which the attention's
+        # einsums cast it to anyway: a second, fp32 copy of the largest tensor would add nothing.
+        sampled = fp32_grid_sample(volume, grid, mode="bilinear", align_corners=True).to(features.dtype)
         mask = view_visible.view(num_batch, views, num_queries, num_heights, 1).permute(0, 2, 3, 1, 4)
         mask = mask.expand(-1, -1, -1, -1, kernel).reshape(num_batch, num_queries, -1)
         return sampled.squeeze(-1), mask, views

@@ -24,7 +24,7 @@ import torch
 from torch import nn
 
 from baselines.attention import DeformableAttention
-from baselines.blocks import FeedForward, bernstein_matrix, inverse_sigmoid, mlp
+from baselines.blocks import FeedForward, bernstein_matrix, combine_points, inverse_sigmoid, mlp
 from baselines.fine_bev import FineBEV
 
 # Points are regressed in sigmoid space over the BEV map widened by this fraction on every side: lanes
@@ -138,7 +138,7 @@ class QueryDecoder(nn.Module):
         if not self.bezier:
             return reference.unsqueeze(2)
         batch, k = reference.shape[0], self.queries_per_instance
-        curve = self.anchor_basis @ reference.view(batch, -1, k, 2)  # (B, Q, K, 2)
+        curve = combine_points(self.anchor_basis, reference.view(batch, -1, k, 2))  # (B, Q, K, 2), fp32
         return curve.unsqueeze(2).expand(-1, -1, k, -1, -1).reshape(batch, -1, k, 2)
 
     def forward(self, bev: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -162,7 +162,8 @@ class QueryDecoder(nn.Module):
             features = x.view(batch, instances, self.queries_per_instance, dim).mean(2)
             all_logits.append(class_head(features).squeeze(-1))
             points = refined.view(batch, instances, self.queries_per_instance, 2)
-            all_points.append(to_unit(self.bernstein @ points if self.bezier else points))
+            # the curves in fp32 under autocast too (blocks.combine_points): they are the output's geometry
+            all_points.append(to_unit(combine_points(self.bernstein, points) if self.bezier else points))
             reference = refined.detach()  # each layer refines the previous one's points
         logits, points, one = torch.stack(all_logits), torch.stack(all_points), self.instances
         if instances > one:

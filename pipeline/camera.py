@@ -23,12 +23,14 @@ def project_points(
     Returns pixels (B, Ncam, P, 2) as (u, v) in the OpenCV convention (pixel (0, 0)'s centre at 0, 0)
     and visible (B, Ncam, P): in front of the camera and inside its image.
     """
-    ego_to_camera = torch.linalg.inv(sensor_to_ego.float())
-    points = points.expand(sensor_to_ego.shape[0], -1, -1)
-    homogeneous = torch.cat([points, torch.ones_like(points[..., :1])], -1)  # (B, P, 4)
-    in_camera = torch.einsum("bnij,bpj->bnpi", ego_to_camera[..., :3, :], homogeneous)
-    depth = in_camera[..., 2]
-    on_image = torch.einsum("bnij,bnpj->bnpi", intrinsics.float(), in_camera)
+    ego_to_camera = torch.linalg.inv(sensor_to_ego.float())[:, :, None, :3]  # (B, Ncam, 1, 3, 4)
+    points = points.float().expand(sensor_to_ego.shape[0], -1, -1)[:, None]  # (B, 1, P, 3)
+    intrinsics = intrinsics.float()[:, :, None]  # (B, Ncam, 1, 3, 3)
+    # Sums of products in fp32, not einsum: a matrix product runs in bf16 under autocast, and in TF32 on
+    # a GPU that allows it (pixels must be right to a fraction of a feature cell).
+    in_camera = ego_to_camera[..., 3] + sum(ego_to_camera[..., j] * points[..., j, None] for j in range(3))
+    depth = in_camera[..., 2]  # in_camera: (B, Ncam, P, 3)
+    on_image = sum(intrinsics[..., j] * in_camera[..., j, None] for j in range(3))
     pixels = on_image[..., :2] / depth.clamp(min=1e-3).unsqueeze(-1)
     height = image_sizes[..., 0:1].float()
     width = image_sizes[..., 1:2].float()

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import torch
 
-from baselines.blocks import bernstein_basis, bernstein_matrix
+from baselines.blocks import bernstein_basis, bernstein_matrix, combine_points
 from baselines.config import Config
 from baselines.models.base import Built, PieceHeadConfig, preset_head
 from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
@@ -102,7 +102,7 @@ class STSULoss(PieceCriterion):
         self.register_buffer("controls", controls.float(), persistent=False)
 
     def geometry(self, points: torch.Tensor) -> torch.Tensor:
-        return self.controls @ points
+        return combine_points(self.controls, points)  # in fp32, never TF32
 
     def target_geometry(self, pieces: torch.Tensor) -> torch.Tensor:
         return fit_bezier(pieces, self.head.bezier_points)

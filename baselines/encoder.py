@@ -20,7 +20,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from baselines.attention import DeformableAttention
-from baselines.blocks import FeedForward, fp32_grid_sample
+from baselines.blocks import FeedForward, constant, fp32_grid_sample
 from baselines.config import EncoderConfig
 from baselines.resnet import build_resnet
 from pipeline.camera import project_points
@@ -58,8 +58,8 @@ class SensorBatch:
         hands over uint8: normalising here runs on the model's device, not in the loader's workers."""
         if self.images.dtype != torch.uint8:
             return self.images
-        mean = torch.tensor(IMAGENET_MEAN, device=self.images.device).view(3, 1, 1)
-        std = torch.tensor(IMAGENET_STD, device=self.images.device).view(3, 1, 1)
+        mean = constant(IMAGENET_MEAN, self.images.device).view(3, 1, 1)
+        std = constant(IMAGENET_STD, self.images.device).view(3, 1, 1)
         height, width = self.images.shape[-2:]
         rows = torch.arange(height, device=self.images.device) < self.image_sizes[..., 0:1]  # (B, Ncam, H)
         cols = torch.arange(width, device=self.images.device) < self.image_sizes[..., 1:2]  # (B, Ncam, W)
@@ -256,7 +256,7 @@ class CameraEncoder(nn.Module):
         # Kernel samples in feature-map coordinates (cell centres at integers).
         stride_y = image_hw[0] / feature_h
         stride_x = image_hw[1] / feature_w
-        stride = torch.tensor([stride_x, stride_y], device=pixels.device)
+        stride = constant([stride_x, stride_y], pixels.device)
         cells = (view_pixels + 0.5) / stride - 0.5
         cells = cells.unsqueeze(-2) + self.kernel_offsets  # (B, V, QZ, K, 2)
         # The cameras are stacked as the depth of a volume; with align_corners=True an integer depth

@@ -97,11 +97,11 @@ def test_prepare_records_the_ground_under_the_bev_origin(synth_prepared):
 
 @pytest.mark.parametrize("dataset", ["av2", "nuscenes"])
 def test_the_tiny_preset_crops_only_sky(synth_prepared, dataset):
-    """The rows that `data.image_crop_top` cuts off hold no projection of the BEV grid's pillar points:
-    the encoder sees every BEV cell in as many cameras, at the same image content, as uncropped."""
+    """The rows that `data.synthetic_image_crop_top` cuts off hold no projection of the BEV grid's pillar
+    points: the encoder sees every BEV cell in as many cameras, at the same image content, as uncropped."""
     whole, cropped = resolve_config("tiny"), resolve_config("tiny")
-    assert cropped.data.image_crop_top > 0
-    whole.data.image_crop_top = 0.0
+    assert cropped.data.synthetic_image_crop_top > 0
+    whole.data.synthetic_image_crop_top = 0.0
     split = "train" if dataset == "av2" else "mini_train"
     encoder = cropped.encoder
     (x0, x1), (y0, y1) = encoder.x_range, encoder.y_range

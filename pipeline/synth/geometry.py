@@ -12,6 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def cross(a: np.ndarray, b: np.ndarray) -> float:
+    """z of the cross product of two 2-D vectors (numpy 2 refuses np.cross of 2-D vectors)."""
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
 def wrap_angle(angle: float) -> float:
     """The same angle in [-pi, pi)."""
     return (angle + math.pi) % (2 * math.pi) - math.pi
@@ -161,7 +166,7 @@ def fillet(a: Pose, b: Pose) -> list[Piece]:
     da = np.array([math.cos(a.heading), math.sin(a.heading)])
     if abs(turn) < 1e-9:
         length = float(np.dot(b.xy - a.xy, da))
-        if length <= 0 or abs(float(np.cross(da, b.xy - a.xy))) > 1e-6:
+        if length <= 0 or abs(cross(da, b.xy - a.xy)) > 1e-6:
             raise ValueError(f"no straight connector from {a} to {b}")
         return [straight(a, length)]
     db = np.array([math.cos(b.heading), math.sin(b.heading)])
@@ -183,7 +188,7 @@ def arc_to(start: Pose, point: np.ndarray) -> Piece:
     """The circular arc (or straight) leaving `start` along its heading and ending at `point`."""
     chord = np.asarray(point, np.float64) - start.xy
     tangent = np.array([math.cos(start.heading), math.sin(start.heading)])
-    half_turn = math.atan2(float(np.cross(tangent, chord)), float(tangent @ chord))
+    half_turn = math.atan2(cross(tangent, chord), float(tangent @ chord))
     length = float(np.hypot(*chord))
     if abs(half_turn) < 1e-12:
         return straight(start, length)

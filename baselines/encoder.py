@@ -322,7 +322,7 @@ class PillarEncoder(nn.Module):
         pillar = config.pillar_channels
         # x and y span tens of metres, intensity 0..1: unnormalised, the paint's intensity is ~1e-4 of each
         # channel's variance at initialisation and LiDAR-only training may not find it in 880 steps
-        # (docs/EXPERIMENTS.md, 2026-12-05, stop 41)
+        # (docs/EXPERIMENTS.md, 2026-12-05, commit 1084dc5)
         self.point_norm = nn.BatchNorm1d(9)
         self.point_net = nn.Sequential(
             nn.Linear(9, pillar, bias=False), nn.BatchNorm1d(pillar), nn.ReLU(True)

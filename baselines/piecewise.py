@@ -93,7 +93,7 @@ def association_loss(
     by negatives / positives of the batch (over all processes), clamped to [1, max_pos_weight]: below the
     clamp the links and the non-links weigh about the same in total, and a batch with a handful of links
     does not get an extreme weight. The tiny heads clamp lower, at 10, so that the links disturb the
-    shared decoder less (docs/EXPERIMENTS.md, 2026-12-04, stop 35). The mean is over the batch's matched
+    shared decoder less (docs/EXPERIMENTS.md, 2026-12-04). The mean is over the batch's matched
     pairs."""
     pair_logits, labels = [], []
     for frame, (rows, cols) in enumerate(matches):

@@ -6,7 +6,7 @@ lane it lies on (`snap_polylines`).
 
 Why: the tiny preset's 1.5 m BEV cells are three times the metric's 0.45 m match radius; regressed
 points land on the right lane but often beyond that radius, and the 0.3 m dense head finds the lane's
-centre to a fraction of a cell (docs/EXPERIMENTS.md, 2026-12-04, stop 38).
+centre to a fraction of a cell (docs/EXPERIMENTS.md, 2026-12-04, commit 0fbbd26).
 """
 
 from __future__ import annotations

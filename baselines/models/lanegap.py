@@ -53,7 +53,7 @@ def tiny_head() -> DecoderConfig:
     # score_threshold 0.5: chosen on the synthetic training frames; a short schedule rarely scores a
     # path above 0.7. point_weight 20 with a fine BEV level at 0.6 m (fine_scale 2.5): the best of the
     # levers measured within the CPU budget (docs/EXPERIMENTS.md, 2026-12-03). The lane head puts the
-    # points within the metric's 0.45 m of their lane (docs/EXPERIMENTS.md, 2026-12-04, stop 38).
+    # points within the metric's 0.45 m of their lane (docs/EXPERIMENTS.md, 2026-12-04, commit 0fbbd26).
     return DecoderConfig(
         num_paths=32,
         path_points=20,

@@ -379,19 +379,42 @@ def eval_(
 def score(
     pred: Path = typer.Option(
         ...,
-        help="Predictions: a graph-table Parquet file or a folder of shards, e.g. RUN/predictions.parquet",
+        help="Predictions: a graph-table Parquet file or a folder of shards (e.g. RUN/predictions.parquet), "
+        "or the results JSON of MapTRv2 / LaneGAP or CGNet (with --format)",
     ),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset or a graph-table file"),
+    format_: Literal["graph", "maptrv2", "cgnet", "auto"] = typer.Option(
+        "graph",
+        "--format",
+        help="graph: our graph table; maptrv2: MapTRv2 / LaneGAP's nuscmap_results.json or "
+        "av2map_results.json (paths, Path2Graph); cgnet: CGNet's nuscmap_results.json (snapped pieces, "
+        "equal points merged); auto: told apart by their content (docs/EXTERNAL.md)",
+    ),
+    class_name: str = typer.Option(
+        None, show_default="centerline", help="maptrv2 / cgnet: the class of vectors scored, others ignored"
+    ),
+    min_score: float = typer.Option(
+        None,
+        min=0.0,
+        show_default="maptrv2 0.4, cgnet 0.3: each codebase's own",
+        help="maptrv2 / cgnet: keep vectors whose confidence_level is above this",
+    ),
+    sweep: bool = typer.Option(
+        False, help="maptrv2 / cgnet: also score at kept scores 0.1 to 0.8 (one scoring each, no intervals)"
+    ),
     split: str = typer.Option(
         None,
         show_default="the split(s) of the predicted frames",
-        help="Score the ground truth's frames of this split (a prepared dataset's); a frame without a "
-        "prediction row is an empty prediction, a predicted frame of another split is refused",
+        help="Score the ground truth's frames of this split (a prepared dataset's); graph: a frame without a "
+        "prediction row is an empty prediction; maptrv2 / cgnet: the frames in the file; a predicted frame "
+        "of another split is refused",
     ),
     out: Path = typer.Option(
         None,
         show_default="not written",
-        help="Write the JSON (scores, thresholds, metric_version) to this file",
+        help="A .json file: the result (scores, thresholds, metric_version); otherwise a run folder "
+        "(predictions.parquet, frame_counts.parquet, metrics.json) that `cli report --runs` shows as "
+        "external",
     ),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
     step: float = typer.Option(0.15, callback=positive, help="Densification step in metres (x>0)"),
@@ -414,26 +437,43 @@ def score(
 ) -> None:
     """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md);
     the JSON records the thresholds and metric_version. Predictions of `cli eval` made by a model trained
-    on other target parameters than the ground truth's are refused (stale data).
+    on other target parameters than the ground truth's are refused (stale data). Result files of
+    MapTRv2 / LaneGAP and CGNet are scored as those codebases write them (docs/EXTERNAL.md); a pickle is
+    refused.
 
     \b
     Examples:
       cli score --pred runs/lanegap/predictions.parquet --gt prepared/av2
-      cli score --pred my_predictions.parquet --gt prepared/av2 --split val --out scores.json --json
+      cli score --pred pts_bbox/nuscmap_results.json --format maptrv2 --gt prepared/nusc --out runs/maptrv2
     """
     from benchmark.score import score as run_score
-    from benchmark.tables import score_table
+    from benchmark.tables import score_table, sweep_table
 
     params = dict(step=step, match_radius=match_radius, reach_radius=reach_radius, matching=matching)
     if range_:
         params["bev_range"] = range_
     with reported_errors():
-        result = run_score(pred, gt, out, workers=workers, bootstrap=bootstrap, split=split, **params)
+        result = run_score(
+            pred, gt, out, workers=workers, bootstrap=bootstrap, split=split, fmt=format_,
+            class_name=class_name, min_score=min_score, sweep=sweep, **params,
+        )  # fmt: skip
     where = f", split {', '.join(result['splits'])}" if result["splits"] else ", every frame"
-    heading = (f"{pred} against {gt}{where}: {result['frames']} frames scored, {result['frames_predicted']} "
-               f"predicted, {result['frames_missing']} missing")  # fmt: skip
+    source = result.get("external") or {}
+    if source.get("vectors_read") is not None:  # a result file of another codebase
+        kept = f"{source['class_name']} above {source['min_score']:g}"
+        heading = (f"{pred} ({source['format']}, {kept}) against {gt}{where}: {result['frames']} frames "
+                   "scored (those in the file), "
+                   f"{source['frames_not_in_file']} of the split not in the file; {source['vectors_kept']} "
+                   f"vectors kept, {source['points_clipped']} points outside the range clipped")  # fmt: skip
+    else:
+        heading = (f"{pred} against {gt}{where}: {result['frames']} frames scored, "
+                   f"{result['frames_predicted']} predicted, {result['frames_missing']} missing")  # fmt: skip
     table, notes = score_table(result)
-    finish(result, [(heading, table)], [out] if out else [], as_json, notes)
+    tables = [(heading, table)]
+    if result.get("sweep"):
+        tables.append(sweep_table(result))
+    wrote = [out] if out is None or out.suffix.lower() == ".json" else [out / "metrics.json", out]
+    finish(result, tables, [path for path in wrote if path], as_json, notes)
 
 
 @app.command(short_help="The ground truth through a representation and back")

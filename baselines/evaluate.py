@@ -24,9 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 import torch
 from torch.utils.data import DataLoader
 from torch.utils.flop_counter import FlopCounterMode
@@ -36,16 +34,9 @@ from baselines.data import PreparedDataset, collate
 from baselines.floor import blind_floor, floor_margins
 from baselines.models import Built, build, load_config, without_pretrained_weights
 from baselines.train import CHECKPOINT, amp_settings, load_checkpoint
-from benchmark.bootstrap import DRAWS, FRAME_COUNTS, add_intervals, check_draws, write_frame_counts
+from benchmark.bootstrap import DRAWS, add_intervals, check_draws
 from benchmark.metrics import MetricParams
-from benchmark.score import (
-    TARGETS_KEY,
-    default_range,
-    graph_row,
-    graphs_from_table,
-    read_graph_table,
-    score_frames,
-)
+from benchmark.score import default_range, graphs_from_table, read_graph_table, score_frames, write_run
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
 from pipeline.manifest import check_targets
@@ -164,18 +155,6 @@ def floor_scores(
     return floor
 
 
-def write_evaluation(
-    run_dir: Path, graphs: dict[str, LaneGraph], targets: dict, frame_counts: np.ndarray, metrics: dict
-) -> None:
-    """predictions.parquet (its metadata: the run's training targets), frame_counts.parquet and
-    metrics.json, each written atomically."""
-    schema = io.SCHEMAS["graphs"].with_metadata({TARGETS_KEY: json.dumps(targets)})
-    table = pa.Table.from_pylist([graph_row(frame_id, graph) for frame_id, graph in graphs.items()], schema)
-    io.write_atomic(run_dir / "predictions.parquet", lambda tmp: pq.write_table(table, tmp))
-    write_frame_counts(run_dir / FRAME_COUNTS, sorted(graphs), frame_counts)
-    io.write_json(run_dir / "metrics.json", metrics)
-
-
 def evaluate(
     run_dir: Path,
     data_dir: Path | None = None,
@@ -233,5 +212,5 @@ def evaluate(
             metrics, inference.graphs, ground_truth, dataset, config, metric_params, data_dir
         )
     metrics["config"] = config.to_dict()
-    write_evaluation(run_dir, inference.graphs, run.get("targets", {}), frame_counts, metrics)
+    write_run(run_dir, inference.graphs, frame_counts, metrics, run.get("targets", {}))
     return metrics

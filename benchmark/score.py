@@ -18,20 +18,26 @@ from __future__ import annotations
 import json
 import os
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as ds
+import pyarrow.parquet as pq
 
-from benchmark.bootstrap import add_intervals, check_draws
+from benchmark import external
+from benchmark.bootstrap import FRAME_COUNTS, add_intervals, check_draws, write_frame_counts
 from benchmark.metrics import METRIC_VERSION, MetricParams, Totals
 from pipeline import io
+from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
 from pipeline.manifest import check_targets
 from pipeline.progress import track
 
 COLUMNS = ("frame_id", "x", "y", "src", "dst")
+# what metrics.json's "external" says of a result file besides its format and options
+EXTERNAL_COUNTS = ("frames_in_file", "frames_not_in_file", "vectors_read", "vectors_kept", "points_clipped")
 TARGETS_KEY = b"lanegraph_targets"  # Parquet metadata of predictions: the targets their model trained on
 
 
@@ -229,34 +235,203 @@ def scored_frames(
     return sorted(f for f in gt if split_of.get(f) in splits), splits
 
 
-def score(
-    pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, bootstrap: int = 0,
-    split: str | None = None, **params,
-) -> dict:  # fmt: skip
-    """Score a prediction graph table against the ground truth; params are MetricParams fields;
-    `bootstrap` draws over the frames give each F1 its 95 % interval (0: none; `cli score`: DRAWS).
+def check_out(out: Path | None) -> None:
+    """`--out`: a .json file, or a run folder that is not one of our trained runs (checked up front)."""
+    if out is None or Path(out).suffix.lower() == ".json":
+        return
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise GraphTableError(f"--out {out}: a file that is not .json; name a .json file or a run folder")
+    for name in ("config.json", "checkpoint.pt"):
+        if (out / name).exists():
+            raise GraphTableError(
+                f"--out {out}: holds a trained run ({name}); write the external run to another folder"
+            )
 
-    The frames of `split` are scored (by default the split or splits of the predicted frames, from a
-    prepared dataset's `frames` table; every frame of a graph-table file). One with no prediction row
-    counts as an empty prediction (`frames_missing`); a predicted frame that is not in the ground truth,
-    or not in `split`, is refused.
-    """
-    check_draws(bootstrap)
-    params.setdefault("bev_range", default_range(gt_path))
-    metric_params = MetricParams(**params)
+
+def write_run(run_dir: Path, graphs: dict[str, LaneGraph], frame_counts: np.ndarray, metrics: dict,
+              targets: dict | None = None) -> None:  # fmt: skip
+    """A run folder as `cli report` reads it: predictions.parquet (its metadata: the targets the model
+    trained on, when known), frame_counts.parquet (rows in sorted frame order, as the counts) and
+    metrics.json last, each written atomically."""
+    schema = io.SCHEMAS["graphs"]
+    if targets is not None:
+        schema = schema.with_metadata({TARGETS_KEY: json.dumps(targets)})
+    rows = [graph_row(frame_id, graphs[frame_id]) for frame_id in sorted(graphs)]
+    table = pa.Table.from_pylist(rows, schema)
+    io.write_atomic(Path(run_dir) / "predictions.parquet", lambda tmp: pq.write_table(table, tmp))
+    write_frame_counts(Path(run_dir) / FRAME_COUNTS, sorted(graphs), frame_counts)
+    io.write_json(Path(run_dir) / "metrics.json", metrics)
+
+
+def read_predictions(pred_path: Path, gt_path: Path) -> dict[str, LaneGraph]:
+    """A graph table's frames, after the stale-data check of the targets its model trained on."""
     pred_table = read_graph_table(pred_path)
     trained = json.loads((pred_table.schema.metadata or {}).get(TARGETS_KEY, b"{}"))
     check_targets(trained, Path(gt_path), f"the model of {pred_path}")
-    gt = graphs_from_table(read_graph_table(gt_path), Path(gt_path))
-    pred = graphs_from_table(pred_table, Path(pred_path))
+    return graphs_from_table(pred_table, Path(pred_path))
+
+
+def graph_predictions(pred: dict, pred_path: Path, gt_path: Path, gt: dict, split: str | None
+                      ) -> tuple[dict[str, LaneGraph], list[str], dict]:  # fmt: skip
+    """A graph table's frames scored: the ground truth's of the predicted frames' split(s), a frame
+    without a prediction row an empty prediction."""
     unknown = sorted(set(pred) - set(gt))
     if unknown:
         raise GraphTableError(f"{pred_path}: frame {unknown[0]} is not in the ground truth {gt_path}")
     frame_ids, splits = scored_frames(pred, gt, Path(gt_path), Path(pred_path), split)
-    pairs = [(pred.get(f, LaneGraph.empty()), gt[f]) for f in frame_ids]
-    result = score_pairs(pairs, metric_params, workers, bootstrap)
     missing = sum(f not in pred for f in frame_ids)
-    result.update(pred=str(pred_path), gt=str(gt_path), splits=splits, frames_predicted=len(pred),
-                  frames_missing=missing)  # fmt: skip
-    write_result(result, out)
+    graphs = {f: pred.get(f, LaneGraph.empty()) for f in frame_ids}
+    info = {"splits": splits, "frames_predicted": len(pred), "frames_missing": missing}
+    return graphs, frame_ids, {**info, "frames_in_file": len(pred), "frames_not_in_file": 0}
+
+
+@dataclass
+class ExternalFile:
+    """A result file of another codebase, read and matched to the ground truth's frames."""
+
+    vectors: external.Vectors
+    frame_ids: list[str]  # each sample's frame
+    dataset: str
+    fmt: str
+    rng: Range
+
+    def graphs(self, min_score: float) -> external.Converted:
+        return external.to_graphs(self.vectors, self.frame_ids, self.fmt, self.dataset, self.rng, min_score)
+
+
+def external_predictions(
+    pred_path: Path, gt_path: Path, fmt: str, class_name: str, min_score: float, split: str | None
+) -> tuple[dict[str, LaneGraph], list[str], dict, ExternalFile]:
+    """The frames of the file alone (a split's frames it lacks are counted, not scored as empty)."""
+    vectors = external.read_vectors(pred_path, fmt, class_name)
+    frame_ids, dataset = external.frame_ids_of(vectors.tokens, gt_path, pred_path)
+    split_of = frame_splits(gt_path)
+    if split:
+        if split not in set(split_of.values()):
+            known = ", ".join(sorted(set(split_of.values())))
+            raise GraphTableError(f"--split {split}: no such split in {gt_path} (its splits: {known})")
+        outside = [(t, f) for t, f in zip(vectors.tokens, frame_ids) if split_of[f] != split]
+        if outside:
+            raise GraphTableError(
+                f"{pred_path}: {len(outside)} samples are not of --split {split}, e.g. {outside[0][0]} "
+                f"({outside[0][1]}, split {split_of[outside[0][1]]})"
+            )
+    if not frame_ids:
+        raise GraphTableError(f"{pred_path}: no sample in its results list")
+    splits = sorted({split_of[f] for f in frame_ids})
+    source = ExternalFile(vectors, frame_ids, dataset, fmt, Range.parse(default_range(gt_path)))
+    converted = source.graphs(min_score)
+    in_splits = sum(s in splits for s in split_of.values())
+    info = {
+        "splits": splits,
+        "frames_predicted": len(frame_ids),
+        "frames_missing": 0,
+        "frames_in_file": len(frame_ids),
+        "frames_not_in_file": in_splits - len(frame_ids),
+        "vectors_read": vectors.read,
+        "vectors_kept": converted.kept,
+        "points_clipped": converted.clipped,
+    }
+    return converted.graphs, sorted(frame_ids), info, source
+
+
+def sweep_scores(
+    source: ExternalFile, gt: dict, params: MetricParams, workers: int, min_scores
+) -> list[dict]:
+    """F1 of each kept score (no intervals): how much the choice of --min-score matters."""
+    rows = []
+    for min_score in min_scores:
+        converted = source.graphs(min_score)
+        pairs = [(converted.graphs[f], gt[f]) for f in sorted(converted.graphs)]
+        result, _ = score_frames(pairs, params, workers)
+        rows.append({"min_score": min_score, "vectors_kept": converted.kept,
+                     **{mode: {m: result[mode][m]["f1"] for m in ("topo", "junction_topo")}
+                        for mode in ("directed", "undirected")}})  # fmt: skip
+    return rows
+
+
+def resolve_format(pred_path: Path, fmt: str, class_name: str | None, min_score: float | None, sweep: bool
+                   ) -> tuple[str, str | None, float | None]:  # fmt: skip
+    """(format, class name, kept score) after `auto` and the defaults; options of another format refused."""
+    if fmt == "auto":
+        fmt = external.detect_format(pred_path)
+    if fmt not in external.FORMATS:
+        raise GraphTableError(f"--format {fmt}: expected one of graph, maptrv2, cgnet, auto")
+    if fmt == "graph":
+        given = [
+            name
+            for name, value in (("--class-name", class_name), ("--min-score", min_score))
+            if value is not None
+        ]
+        if given or sweep:
+            raise GraphTableError(
+                f"{', '.join(given + ['--sweep'] * sweep)}: only for a result file of another codebase "
+                f"(--format maptrv2, cgnet or auto); {pred_path} is read as a graph table"
+            )
+        external.refuse_pickle(Path(pred_path))
+        if Path(pred_path).is_file() and Path(pred_path).suffix.lower() == ".json":
+            raise GraphTableError(
+                f"{pred_path}: a JSON file, not a graph table; pass --format maptrv2 or cgnet (or auto)"
+            )
+        return fmt, None, None
+    class_name = class_name or "centerline"
+    if class_name not in external.CLASSES[fmt]:
+        raise GraphTableError(
+            f"--class-name {class_name}: not a {fmt} class ({', '.join(external.CLASSES[fmt])})"
+        )
+    return fmt, class_name, external.MIN_SCORE[fmt] if min_score is None else min_score
+
+
+def score(
+    pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, bootstrap: int = 0,
+    split: str | None = None, fmt: str = "graph", class_name: str | None = None,
+    min_score: float | None = None, sweep: bool = False, **params,
+) -> dict:  # fmt: skip
+    """Score predictions against the ground truth; params are MetricParams fields; `bootstrap` draws over
+    the frames give each F1 its 95 % interval (0: none; `cli score`: DRAWS).
+
+    fmt "graph": a graph table. The frames of `split` are scored (by default the split or splits of the
+    predicted frames, from a prepared dataset's `frames` table; every frame of a graph-table file). One
+    with no prediction row counts as an empty prediction (`frames_missing`); a predicted frame that is
+    not in the ground truth, or not in `split`, is refused.
+    fmt "maptrv2" / "cgnet" (or "auto"): another codebase's JSON (benchmark/external.py); the frames in
+    the file are scored, and the split's frames it lacks are counted (`frames_not_in_file`); `sweep`
+    adds the F1 at each of external.SWEEP's kept scores.
+    `out`: a .json file of the result, or a run folder (`write_run`) that `cli report` reads.
+    """
+    check_draws(bootstrap)
+    fmt, class_name, min_score = resolve_format(Path(pred_path), fmt, class_name, min_score, sweep)
+    check_out(out)
+    params.setdefault("bev_range", default_range(gt_path))
+    metric_params = MetricParams(**params)
+    source, pred = None, read_predictions(pred_path, gt_path) if fmt == "graph" else None
+    gt = graphs_from_table(read_graph_table(gt_path), Path(gt_path))
+    if fmt == "graph":
+        graphs, frame_ids, info = graph_predictions(pred, Path(pred_path), Path(gt_path), gt, split)
+    else:
+        graphs, frame_ids, info, source = external_predictions(
+            Path(pred_path), Path(gt_path), fmt, class_name, min_score, split
+        )
+    pairs = [(graphs[f], gt[f]) for f in frame_ids]
+    result, frame_counts = score_frames(pairs, metric_params, workers)
+    add_intervals(result, frame_counts, bootstrap)
+    counts = {key: info.pop(key, None) for key in EXTERNAL_COUNTS}
+    result.update(pred=str(pred_path), gt=str(gt_path), **info)
+    run_folder = out is not None and Path(out).suffix.lower() != ".json"
+    if fmt != "graph" or run_folder:  # what `cli report` says of a model that is not ours
+        digest = external.sha256(Path(pred_path)) if Path(pred_path).is_file() else None
+        result["external"] = {"format": fmt, "source": str(pred_path), "sha256": digest,
+                              "class_name": class_name, "min_score": min_score, **counts}  # fmt: skip
+    if sweep:
+        result["sweep"] = sweep_scores(
+            source, gt, metric_params, workers, sorted({*external.SWEEP, min_score})
+        )
+    if run_folder:
+        metrics = {**result, "data": str(gt_path), "split": "+".join(result["splits"] or []) or None,
+                   "model": "external", "modeling": external.MODELING[fmt], "params": None, "gflops": None,
+                   "fps_net": None, "fps": None, "device": None, "precision": None}  # fmt: skip
+        write_run(Path(out), graphs, frame_counts, metrics)
+    else:
+        write_result(result, out)
     return result

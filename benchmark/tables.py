@@ -93,6 +93,19 @@ def score_table(result: dict) -> tuple[Table, list[str]]:
     return table, notes
 
 
+def sweep_table(result: dict) -> tuple[str, Table]:
+    """`cli score --sweep`: the F1 at each kept score of a result file, the one scored above marked."""
+    table = Table(
+        "kept score above", "vectors kept", *(f"{mode} {name} F1" for mode in MODES for name, _ in METRICS)
+    )
+    chosen = result["external"]["min_score"]
+    for row in result["sweep"]:
+        mark = " (scored above)" if row["min_score"] == chosen else ""
+        table.add_row(f"{row['min_score']:g}{mark}", str(row["vectors_kept"]),
+                      *(f"{row[mode][metric]:.3f}" for mode in MODES for _, metric in METRICS))  # fmt: skip
+    return "F1 by kept score (--sweep; no intervals)", table
+
+
 def plain(cell: str) -> str:
     """A markdown cell without its bold and code quotes."""
     return cell.replace("`", "").removeprefix("**").removesuffix("**")

@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 
 from pipeline.errors import DataError
 
-SCHEMA_VERSION = 2  # 2: frames.ground_z
+SCHEMA_VERSION = 3  # 2: frames.ground_z; 3: frames.sample_token
 TABLES = ("frames", "graphs", "paths", "pieces", "piece_links", "rasters")
 
 f32_list = pa.list_(pa.float32())
@@ -36,6 +36,7 @@ SCHEMAS = {
             ("frame_id", pa.string()),
             ("dataset", pa.string()),
             ("split", pa.string()),
+            ("sample_token", pa.string()),  # nuScenes: the sample's token; AV2: null (no such token)
             ("log_id", pa.string()),
             ("timestamp_ns", pa.int64()),
             ("city", pa.string()),

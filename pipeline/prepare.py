@@ -156,6 +156,7 @@ def frame_row(frame: Frame, targets: FrameTargets) -> dict:
         "frame_id": frame.frame_id,
         "dataset": frame.dataset,
         "split": frame.split,
+        "sample_token": frame.sample_token,
         "log_id": frame.log_id,
         "timestamp_ns": frame.timestamp_ns,
         "city": frame.city,

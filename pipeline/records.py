@@ -43,6 +43,7 @@ class Frame:
     lidar_path: str = ""  # relative to the dataset root; "" where absent
     lidar_to_ego: np.ndarray = field(default_factory=lambda: np.eye(4))
     ground_z: float = 0.0  # z, in the BEV frame, of the ground under the BEV origin
+    sample_token: str | None = None  # nuScenes: the sample's token, the id other codebases' results use
 
 
 @dataclass

@@ -24,7 +24,7 @@ CHOICES = {  # the options whose values are a closed set: typed, so that click l
     "prepare": {"dataset", "executor", "on_error"},
     "train": {"model", "preset", "modality", "path_points"},
     "eval": {"device"},
-    "score": {"matching"},
+    "score": {"matching", "format_"},
     "roundtrip": {"via"},
     "report": {"reference"},
 }

@@ -28,6 +28,7 @@ from typer.testing import CliRunner
 
 from baselines.train import load_checkpoint, logged_lines
 from benchmark.metrics import METRIC_VERSION, MetricParams
+from pipeline.io import SCHEMA_VERSION
 from benchmark.score import score_pairs
 from cli import app
 from pipeline.lane_graph import LaneGraph
@@ -182,7 +183,7 @@ def toy_run(tmp_path_factory) -> tuple[Path, Path]:
     data = write_toy_dataset(root, frames=12)
     manifest = json.loads((data / "manifest.json").read_text())
     (data / "manifest.json").write_text(
-        json.dumps({**manifest, "schema_version": 2, "parameters": PARAMETERS})
+        json.dumps({**manifest, "schema_version": SCHEMA_VERSION, "parameters": PARAMETERS})
     )
     run = root / "straight"
     result = cli("train", "--data", data, "--out", run, *TRAIN)
@@ -293,8 +294,8 @@ def test_stale_data_is_refused_by_name(toy_run, tmp_path):
     one_error_line(cli("score", "--pred", predictions, "--gt", other), "stale data", "path_points=20")
     one_error_line(cli("train", "--out", run, "--data", other, "--resume"), "stale data", "path_points=20")
     assert files(run) == before  # nothing of the run was touched
-    (other / "manifest.json").write_text(json.dumps({**manifest, "schema_version": 3}))
-    one_error_line(cli("score", "--pred", predictions, "--gt", other), "schema_version=3")
+    (other / "manifest.json").write_text(json.dumps({**manifest, "schema_version": SCHEMA_VERSION + 1}))
+    one_error_line(cli("score", "--pred", predictions, "--gt", other), f"schema_version={SCHEMA_VERSION + 1}")
     (other / "manifest.json").write_text(json.dumps(manifest))
     scored = cli("score", "--pred", predictions, "--gt", other, "--json")
     assert json.loads(scored.stdout)["metric_version"] == 1

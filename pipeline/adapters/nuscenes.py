@@ -179,6 +179,7 @@ def load_log(ref: SceneRef, margin: float) -> Log:
                 lidar_path=lidar["filename"],
                 lidar_to_ego=np.eye(4),
                 ground_z=ground_height(lidar_calib),
+                sample_token=token,
             )
         )
         token = sample["next"]

@@ -113,6 +113,7 @@ wheelhouse: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmark/bench_prepare.py
 	$(PY) benchmark/bench_metrics.py
+	$(PY) benchmark/bench_external.py
 	$(PY) baselines/bench_loader.py
 
 bench-train: $(STAMP)

@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -249,9 +250,10 @@ class Converted:
     clipped: int  # their points outside the range
 
 
-def to_graphs(vectors: Vectors, frame_ids: list[str], fmt: str, dataset: str, rng: Range, min_score: float
-              ) -> Converted:  # fmt: skip
-    """Each sample's lane graph from its vectors above min_score, in our BEV frame, clipped to rng."""
+def to_graphs(vectors: Vectors, frame_ids: list[str], fmt: str, dataset: str, rng: Range, min_score: float,
+              workers: int = 1) -> Converted:  # fmt: skip
+    """Each sample's lane graph from its vectors above min_score, in our BEV frame, clipped to rng; the
+    graphs built in `workers` processes."""
     keep = np.flatnonzero(vectors.scores > min_score)
     sizes = np.diff(vectors.offsets)[keep]
     take = np.repeat(vectors.offsets[keep], sizes) + (
@@ -270,11 +272,22 @@ def to_graphs(vectors: Vectors, frame_ids: list[str], fmt: str, dataset: str, rn
     )
     piece_sample = vectors.sample[keep][piece_vector]  # nondecreasing: vectors are in sample order
     bounds = np.searchsorted(piece_sample, np.arange(len(vectors.tokens) + 1))
+    frames = [
+        [points[piece_offsets[k] : piece_offsets[k + 1]] for k in range(bounds[i], bounds[i + 1])]
+        for i in range(len(frame_ids))
+    ]
+    if workers > 1 and len(frames) >= 64 * workers:  # Path2Graph is most of the conversion's time
+        size = -(-len(frames) // (4 * workers))
+        chunks = [frames[i : i + size] for i in range(0, len(frames), size)]
+        with ProcessPoolExecutor(workers) as pool:
+            built = [g for part in pool.map(build_graphs, chunks, [fmt] * len(chunks)) for g in part]
+    else:
+        built = build_graphs(frames, fmt)
+    return Converted(dict(zip(frame_ids, built)), len(keep), int(outside.sum()))
+
+
+def build_graphs(frames: list[list[np.ndarray]], fmt: str) -> list[LaneGraph]:
+    """Each frame's graph from its clipped vectors: Path2Graph for MapTRv2's paths, equal points merged
+    for CGNet's pieces."""
     build = path2graph if fmt == "maptrv2" else merge_equal_points
-    graphs = {}
-    for index, frame_id in enumerate(frame_ids):
-        pieces = [
-            points[piece_offsets[k] : piece_offsets[k + 1]] for k in range(bounds[index], bounds[index + 1])
-        ]
-        graphs[frame_id] = build(pieces) if pieces else LaneGraph.empty()
-    return Converted(graphs, len(keep), int(outside.sum()))
+    return [build(pieces) if pieces else LaneGraph.empty() for pieces in frames]

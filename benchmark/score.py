@@ -295,13 +295,22 @@ class ExternalFile:
     dataset: str
     fmt: str
     rng: Range
+    workers: int
 
     def graphs(self, min_score: float) -> external.Converted:
-        return external.to_graphs(self.vectors, self.frame_ids, self.fmt, self.dataset, self.rng, min_score)
+        return external.to_graphs(
+            self.vectors, self.frame_ids, self.fmt, self.dataset, self.rng, min_score, self.workers
+        )
 
 
 def external_predictions(
-    pred_path: Path, gt_path: Path, fmt: str, class_name: str, min_score: float, split: str | None
+    pred_path: Path,
+    gt_path: Path,
+    fmt: str,
+    class_name: str,
+    min_score: float,
+    split: str | None,
+    workers: int,
 ) -> tuple[dict[str, LaneGraph], list[str], dict, ExternalFile]:
     """The frames of the file alone (a split's frames it lacks are counted, not scored as empty)."""
     vectors = external.read_vectors(pred_path, fmt, class_name)
@@ -320,7 +329,8 @@ def external_predictions(
     if not frame_ids:
         raise GraphTableError(f"{pred_path}: no sample in its results list")
     splits = sorted({split_of[f] for f in frame_ids})
-    source = ExternalFile(vectors, frame_ids, dataset, fmt, Range.parse(default_range(gt_path)))
+    workers = workers if workers > 0 else os.cpu_count() or 1
+    source = ExternalFile(vectors, frame_ids, dataset, fmt, Range.parse(default_range(gt_path)), workers)
     converted = source.graphs(min_score)
     in_splits = sum(s in splits for s in split_of.values())
     info = {
@@ -336,15 +346,13 @@ def external_predictions(
     return converted.graphs, sorted(frame_ids), info, source
 
 
-def sweep_scores(
-    source: ExternalFile, gt: dict, params: MetricParams, workers: int, min_scores
-) -> list[dict]:
+def sweep_scores(source: ExternalFile, gt: dict, params: MetricParams, min_scores) -> list[dict]:
     """F1 of each kept score (no intervals): how much the choice of --min-score matters."""
     rows = []
     for min_score in min_scores:
         converted = source.graphs(min_score)
         pairs = [(converted.graphs[f], gt[f]) for f in sorted(converted.graphs)]
-        result, _ = score_frames(pairs, params, workers)
+        result, _ = score_frames(pairs, params, source.workers)
         rows.append({"min_score": min_score, "vectors_kept": converted.kept,
                      **{mode: {m: result[mode][m]["f1"] for m in ("topo", "junction_topo")}
                         for mode in ("directed", "undirected")}})  # fmt: skip
@@ -411,7 +419,7 @@ def score(
         graphs, frame_ids, info = graph_predictions(pred, Path(pred_path), Path(gt_path), gt, split)
     else:
         graphs, frame_ids, info, source = external_predictions(
-            Path(pred_path), Path(gt_path), fmt, class_name, min_score, split
+            Path(pred_path), Path(gt_path), fmt, class_name, min_score, split, workers
         )
     pairs = [(graphs[f], gt[f]) for f in frame_ids]
     result, frame_counts = score_frames(pairs, metric_params, workers)
@@ -424,9 +432,7 @@ def score(
         result["external"] = {"format": fmt, "source": str(pred_path), "sha256": digest,
                               "class_name": class_name, "min_score": min_score, **counts}  # fmt: skip
     if sweep:
-        result["sweep"] = sweep_scores(
-            source, gt, metric_params, workers, sorted({*external.SWEEP, min_score})
-        )
+        result["sweep"] = sweep_scores(source, gt, metric_params, sorted({*external.SWEEP, min_score}))
     if run_folder:
         metrics = {**result, "data": str(gt_path), "split": "+".join(result["splits"] or []) or None,
                    "model": "external", "modeling": external.MODELING[fmt], "params": None, "gflops": None,

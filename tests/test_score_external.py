@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import pickle
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -303,3 +304,17 @@ def test_cli_scores_sweeps_and_writes_a_run_folder(synth_prepared, tmp_path):
                                        "--out", str(trained)])  # fmt: skip
     assert refused.exit_code == 1 and "holds a trained run (config.json)" in refused.output
     assert sorted(p.name for p in trained.iterdir()) == ["config.json"]
+
+
+def test_a_nuscenes_dataset_prepared_before_sample_tokens_is_refused(synth_prepared, tmp_path):
+    data = tmp_path / "old"
+    shutil.copytree(synth_prepared["nuscenes"], data)
+    for shard in (data / "frames").glob("*.parquet"):
+        pq.write_table(pq.read_table(shard).drop_columns(["sample_token"]), shard)
+    path = maptrv2_file(synth_prepared["nuscenes"], "nuscenes", tmp_path / "m.json")
+    result = CliRunner().invoke(app, ["score", "--pred", str(path), "--gt", str(data), "--format", "maptrv2"])
+    assert result.exit_code == 1
+    error = [line for line in result.output.splitlines() if line.strip()]
+    assert (
+        len(error) == 1 and "column sample_token: missing" in error[0] and "re-run `cli prepare`" in error[0]
+    )

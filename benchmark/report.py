@@ -41,6 +41,9 @@ METHOD_NAMES = {"lanegap": "LaneGAP", "maptr": "MapTR", "stsu": "STSU", "hdmapne
 VIA_NAMES = {"path": "Path2Graph (paths)", "piece": "Piece2Graph (pieces)", "pixel": "Pixel2Graph (rasters)"}
 RUN_FILES = ("metrics.json", "config.json", "run.json", "checkpoint.pt", "log.jsonl", "predictions.parquet")
 REQUIRED = ("frames", "directed", "undirected", "metric_params", "params", "fps_net", "fps", "split", "data")
+MEASURED = ("params", "fps_net", "fps")  # null only in an external run's metrics.json (not measured here)
+# an external run (`cli score --out RUN_DIR`: another codebase's result file, metrics.json's "external")
+EXTERNAL_NAMES = {"maptrv2": "MapTRv2 / LaneGAP JSON", "cgnet": "CGNet JSON", "graph": "graph table"}
 # config fields that do not change what a run learns: never the varied field of an ablation
 IGNORED_FIELDS = {
     "data.num_workers",
@@ -88,6 +91,12 @@ REFERENCE_PLACES = {
     "tab:perception_range": "under a dataset block prepared at 50 x 100 m",
     "tab:newsplit": "under a dataset block prepared with `--split-file` (a geographic split)",
 }
+EXTERNAL_NOTE = (
+    "A run whose method ends in *(external)* is another codebase's result file, scored by `cli score --out "
+    "RUN_DIR` with the same metric on the same ground truth (its metrics.json, not `cli eval`'s): ranked "
+    "and bolded with the runs, but its size, speed, sensors and sensor-blind floor are unknown (the note "
+    "under its table says what was read)."
+)
 GRID_NOTE = "Each piece in its own colour, arrows in the driving direction, the ego car in grey."
 
 
@@ -114,12 +123,23 @@ class Run:
         return self.metrics is not None
 
     @property
+    def external(self) -> dict | None:
+        """metrics.json's "external": what `cli score` read of another codebase's result file; None for
+        a run trained here."""
+        return (self.metrics or {}).get("external")
+
+    @property
     def method(self) -> str:
+        if self.external is not None:
+            fmt = self.external.get("format")
+            return f"{EXTERNAL_NAMES.get(fmt, fmt)} (external)"
         model = (self.metrics or {}).get("model") or (self.config or {}).get("model") or "?"
         return METHOD_NAMES.get(model, model)
 
     @property
     def modality(self) -> str:
+        if self.external is not None:
+            return "unknown"
         return (self.config or {}).get("encoder", {}).get("modality", "-")
 
     def score(self, mode: str, metric: str, stat: str = "f1") -> float:
@@ -176,7 +196,13 @@ class Block:
 
     @property
     def title(self) -> str:
-        frames = f", {self.scored[0].metrics['frames']} frames" if self.scored else ""
+        frames = ""
+        if self.scored:
+            ours = [run for run in self.scored if run.external is None] or self.scored
+            frames = f", {ours[0].metrics['frames']} frames"
+            fewer = [run for run in self.scored if run.metrics["frames"] != ours[0].metrics["frames"]]
+            if fewer:
+                frames += " (" + "; ".join(f"{run.name}: {run.metrics['frames']}" for run in fewer) + ")"
         data = shown(self.data) if self.data else "data not found"
         return f"{self.name}: `{data}`, {self.split or '?'} split{frames}"
 
@@ -261,12 +287,14 @@ def load_run(path: Path, name: str) -> Run:
             else (config, value, metrics) if file_name == "run.json"
             else (config, info, value)
         )  # fmt: skip
-    if not (path / "checkpoint.pt").is_file():
+    external = isinstance(metrics, dict) and metrics.get("external") is not None
+    if not external and not (path / "checkpoint.pt").is_file():  # an external run was never trained here
         reasons.append("no checkpoint.pt (training did not finish)")
     if metrics is None and not (path / "metrics.json").is_file():
         reasons.append(f"no metrics.json (not evaluated: `cli eval --run {shown(path)}`)")
     elif metrics is not None:
         missing = [key for key in REQUIRED if key not in metrics]
+        missing += [key for key in MEASURED if key in metrics and metrics[key] is None and not external]
         if missing:
             reasons.append(f"{shown(path / 'metrics.json')} lacks {', '.join(missing)} (re-run `cli eval`)")
             metrics = None
@@ -379,6 +407,15 @@ SCORE_HEADER = [
 ]
 
 
+# (metrics.json key, format, divisor) of the main table's last columns: Params (M), GFLOPs, FPS_net, FPS
+MEASURED_CELLS = (("params", ".2f", 1e6), ("gflops", ".2f", 1), ("fps_net", ".1f", 1), ("fps", ".1f", 1))
+
+
+def cell_or(value: float | None, spec: str, missing: str, divisor: float = 1) -> str:
+    """A measured number formatted, or `missing` when it is null."""
+    return missing if value is None else format(value / divisor, spec)
+
+
 def main_table(block: Block) -> tuple[list[str], list[list[str]]]:
     """Tab. 1's layout: a row per run, then the sensor-blind floor rows and the best constant in
     hindsight; the best F1 of each column (among the runs) in bold. Scores in %, each run's F1 with its
@@ -401,8 +438,8 @@ def main_table(block: Block) -> tuple[list[str], list[list[str]]]:
         cells = [run.f1_cell(mode, metric) if stat == "f1" else percent(m[mode][metric][stat])
                  for mode in MODES for metric in METRICS for stat in STATS]  # fmt: skip
         values.append([float(m[mode][metric]["f1"]) for mode in MODES for metric in METRICS])
-        gflops = f"{m['gflops']:.2f}" if m.get("gflops") is not None else "–"
-        extra = [f"{m['params'] / 1e6:.2f}", gflops, f"{m['fps_net']:.1f}", f"{m['fps']:.1f}"]
+        missing = "unknown" if run.external is not None else "–"  # an external run's: not measured here
+        extra = [cell_or(m.get(key), spec, missing, divisor) for key, spec, divisor in MEASURED_CELLS]
         rows.append([run.name, run.method, m.get("modeling", "–"), run.modality, *cells, *extra])
     f1_cells = [[row[4 + i] for i in f1_at] for row in rows]
     bold_best(f1_cells, values)
@@ -438,6 +475,10 @@ def settings_table(block: Block) -> tuple[list[str], list[list[str]]]:
               "batch size (total)", "processes x micro-batches x frames", "split"]  # fmt: skip
     rows = []
     for run in block.runs:
+        if run.external is not None:  # no config, run.json or log: only what cli score knew
+            preset = f"external ({run.external.get('format', '?')})"
+            rows.append([run.name, "–", "–", preset, "–", "–", "–", "–", str(run.split or "–")])
+            continue
         config = run.config or {}
         train = config.get("train", {})
         trained = max((entry.get("epoch", 0) for entry in run.log), default=None)
@@ -462,11 +503,53 @@ def floor_notes(block: Block) -> list[str]:
     notes = []
     for run in block.scored:
         floor = run.metrics.get("floor")
+        if run.external is not None:  # external_notes says why it has none
+            continue
         if floor is None:
             notes.append(f"{run.name}: no sensor-blind floor recorded (evaluated with `--no-floor`).")
             continue
         for name, reason in (floor.get("absent") or {}).items():
             notes.append(f"{run.name}: no `{name}` floor row: {reason}.")
+    return notes
+
+
+def external_notes(block: Block) -> list[str]:
+    """A note per external run of the block: what `cli score` read (format, file, its sha256, the class
+    and score kept), on which frames, and what is unknown of it."""
+    notes = []
+    for run in block.scored:
+        ext = run.external
+        if ext is None:
+            continue
+        fmt, source, digest = ext.get("format"), ext.get("source"), ext.get("sha256")
+        what = f"{EXTERNAL_NAMES.get(fmt, fmt)} `{Path(source).name if source else '?'}`"
+        what += f", sha256 {digest[:12]}" if digest else ", no sha256 recorded"
+        parts = []
+        if ext.get("class_name") is not None:
+            kept = f" above score {ext['min_score']:g}" if ext.get("min_score") is not None else ""
+            parts.append(f"class `{ext['class_name']}`{kept}")
+        split = f"the {run.split} split's" if run.split else "the ground truth's"
+        absent = run.metrics.get("frames_missing") or 0
+        if fmt == "graph":  # a graph table: the split's frames it lacks are scored as empty predictions
+            parts.append(f"{run.metrics['frames']} of {split} frames scored, {absent} of them not in its "
+                         "file (scored as empty predictions)")  # fmt: skip
+        else:  # another codebase's JSON: the frames in its file alone
+            if ext.get("frames_in_file") is not None:
+                parts.append(f"{ext['frames_in_file']} frames in its file scored")
+            missing = ext.get("frames_not_in_file")
+            if missing is not None:
+                fewer = (" (its F1 is over fewer frames, so no paired lead is tested between it and a run "
+                         "scored on other frames)") if missing > 0 else ""  # fmt: skip
+                parts.append(f"{missing} of {split} frames not in its file{fewer}")
+        if ext.get("points_clipped") is not None:
+            parts.append(f"{ext['points_clipped']} points outside the range clipped")
+        if ext.get("vectors_read") is not None:
+            parts.append(f"{ext.get('vectors_kept', '?')} of {ext['vectors_read']} vectors kept")
+        notes.append(
+            f"{run.name}: external ({what}), scored by `cli score` with this report's metric on the same "
+            f"ground truth" + (": " + "; ".join(parts) if parts else "") + ". Its parameter count, GFLOPs, "
+            "FPS and sensor-blind floor are unknown: its training and sensors are not ours."
+        )
     return notes
 
 
@@ -496,7 +579,7 @@ def ablations(block: Block) -> list[tuple[str, list[Run]]]:
                 out[key] = value
         return {k: v for k, v in out.items() if k not in IGNORED_FIELDS}
 
-    runs = [run for run in block.scored if run.config]
+    runs = [run for run in block.scored if run.config and run.external is None]
     configs = {id(run): flat(run.config) for run in runs}
     found = []
     for name in sorted(set().union(*configs.values()) if configs else ()):
@@ -565,10 +648,12 @@ def block_graphs(block: Block) -> tuple[dict[str, LaneGraph], dict[str, dict[str
 
 def junction_table(
     gt: dict[str, LaneGraph], predictions: dict[str, dict[str, LaneGraph]], counts: dict[str, int],
-    params: MetricParams, workers: int = 1,
+    params: MetricParams, workers: int = 1, own_frames: frozenset[str] = frozenset(),
 ) -> tuple[list[str], list[list[str]]]:  # fmt: skip
     """Directed TOPO and Junction TOPO F1 of every run on the frames of each junction-count bucket;
-    scored here with the metric (a frame a run did not predict is an empty prediction, as `cli score`)."""
+    scored here with the metric (a frame a run did not predict is an empty prediction, as `cli score`;
+    the runs named in `own_frames`, external ones, are scored on their predicted frames alone, as their
+    metrics.json)."""
     header = ["GT junctions", "frames"]
     for name in predictions:
         header += [f"{name} dir TOPO F1", f"{name} dir J-TOPO F1"]
@@ -576,11 +661,12 @@ def junction_table(
     for _, _, label in JUNCTION_BUCKETS:
         frames = [f for f in sorted(gt) if bucket_of(counts[f]) == label]
         row = [label, str(len(frames))]
-        for graphs in predictions.values():
-            if not frames:
+        for name, graphs in predictions.items():
+            scored = [f for f in frames if f in graphs] if name in own_frames else frames
+            if not scored:
                 row += ["–", "–"]
                 continue
-            pairs = [(graphs.get(f, LaneGraph.empty()), gt[f]) for f in frames]
+            pairs = [(graphs.get(f, LaneGraph.empty()), gt[f]) for f in scored]
             result = score_pairs(pairs, params, workers)["directed"]
             row += [
                 percent(result["topo"]["f1"]),
@@ -856,6 +942,8 @@ def introduction(blocks: list[Block], draws: int, doc: Sections) -> list[str]:
         "(none when all tie).",
         "",
     ]
+    if any(run.external is not None for block in blocks for run in block.scored):
+        md += [EXTERNAL_NOTE, ""]
     if draws:
         md += [
             "[low, high] beside a run's F1: its 95 % interval, a bootstrap over the block's frames "
@@ -880,6 +968,8 @@ def main_section(block: Block, beside: list[tuple[ReferenceTable, list[dict]]], 
     md += [markdown_table(*main_table(block)), ""]
     md += [f"- {run.name}: no F1 intervals: {run.no_counts}." for run in block.scored if run.no_counts]
     md += [""] if any(run.no_counts for run in block.scored) else []
+    md += [f"- {note}" for note in external_notes(block)]
+    md += [""] if any(run.external is not None for run in block.scored) else []
     doc.shown_references.append([])
     if refs:
         if block.synthetic:
@@ -941,7 +1031,16 @@ def junction_sections(block: Block, slug: str, doc: Sections) -> list[str]:
         md += ["Computed here, not read from metrics.json: each run's predictions.parquet scored with "
                "the project's metric (parameters above) on the frames of each bucket. "
                + JUNCTION_DEFINITION, ""]  # fmt: skip
-        md += [markdown_table(*junction_table(gt, predictions, counts, params, doc.workers)), ""]
+        external = {
+            run.name: run for run in block.scored if run.external is not None and run.name in predictions
+        }
+        table = junction_table(gt, predictions, counts, params, doc.workers, frozenset(external))
+        md += [markdown_table(*table), ""]
+        fewer = [(name, len(predictions[name])) for name in external if len(predictions[name]) < len(gt)]
+        md += [f"- {name}: scored on the {n} frames of its result file alone (of the {len(gt)} here); a "
+               "bucket's F1 of it is over those, and a frame not in its file is drawn empty in the grid."
+               for name, n in fewer]  # fmt: skip
+        md += [""] if fewer else []
         frames = grid_frames(counts, gt)
         columns = [("ground truth", gt)] + list(predictions.items())
         labels = [(f, f"{short_id(f)} ({counts[f]} junctions)") for f in frames]

@@ -86,23 +86,25 @@ def refuse_pickle(path: Path) -> None:
             )
 
 
-def detect_format(path: Path) -> str:
-    """`--format auto`: graph for Parquet (a file or folder); for JSON, maptrv2 when its centerline is
-    MapTRv2's class 3 or other MapTRv2 classes appear, cgnet when every vector is a class-0 centerline."""
+def detect_format(path: Path) -> tuple[str, dict | None]:
+    """`--format auto`: (format, the parsed JSON or None). graph for Parquet (a file or folder); for JSON,
+    maptrv2 when its centerline is MapTRv2's class 3 or other MapTRv2 classes appear, cgnet when every
+    vector is a class-0 centerline."""
     path = Path(path)
     refuse_pickle(path)
     if path.is_dir() or not path.is_file():
-        return "graph"  # a folder of shards or a prepared dataset; a missing path fails in the reader
+        return "graph", None  # a folder of shards or a prepared dataset; a missing path fails in the reader
     with open(path, "rb") as file:
         head = file.read(4)
     if head == b"PAR1":
-        return "graph"
+        return "graph", None
     data = load_json(path)
-    kinds = {(v.get("cls_name"), v.get("type")) for r in data["results"] for v in r.get("vectors") or []}
+    records = [r for r in data["results"] if isinstance(r, dict) and isinstance(r.get("vectors"), list)]
+    kinds = {(v.get("cls_name"), v.get("type")) for r in records for v in r["vectors"] if isinstance(v, dict)}
     if any(name in CLASSES["maptrv2"][:3] for name, _ in kinds) or ("centerline", 3) in kinds:
-        return "maptrv2"
+        return "maptrv2", data
     if kinds and kinds <= {("centerline", 0)}:
-        return "cgnet"
+        return "cgnet", data
     raise ResultFileError(
         f"{path}: --format auto cannot tell MapTRv2 from CGNet (classes {sorted(map(str, kinds))[:4]}); "
         "pass --format maptrv2 or --format cgnet"
@@ -123,15 +125,16 @@ def load_json(path: Path) -> dict:
     return data
 
 
-def read_vectors(path: Path, fmt: str, class_name: str) -> Vectors:
-    """The vectors of `class_name`, after checking every record; the first bad one raises one line
-    naming the file, the sample and the field. Other classes' vectors are counted, their points unread."""
+def read_vectors(path: Path, fmt: str, class_name: str, data: dict | None = None) -> Vectors:
+    """The vectors of `class_name` (from `data`, the file parsed already, if given), after checking every
+    record; the first bad one raises one line naming the file, the sample and the field. Other classes'
+    vectors are counted, their points unread."""
     path = Path(path)
     refuse_pickle(path)
     if not path.is_file():
         raise ResultFileError(f"{path}: no such file")
     classes = CLASSES[fmt]
-    data = load_json(path)
+    data = load_json(path) if data is None else data
     tokens, sample, scores, chains = [], [], [], []
     read = 0
     for index, record in enumerate(data["results"]):

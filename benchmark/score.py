@@ -304,16 +304,12 @@ class ExternalFile:
 
 
 def external_predictions(
-    pred_path: Path,
-    gt_path: Path,
-    fmt: str,
-    class_name: str,
-    min_score: float,
-    split: str | None,
-    workers: int,
-) -> tuple[dict[str, LaneGraph], list[str], dict, ExternalFile]:
-    """The frames of the file alone (a split's frames it lacks are counted, not scored as empty)."""
-    vectors = external.read_vectors(pred_path, fmt, class_name)
+    pred_path: Path, gt_path: Path, fmt: str, class_name: str, min_score: float, split: str | None,
+    workers: int, parsed: dict | None = None,
+) -> tuple[dict[str, LaneGraph], list[str], dict, ExternalFile]:  # fmt: skip
+    """The frames of the file alone (a split's frames it lacks are counted, not scored as empty); `parsed`:
+    the file's JSON when `--format auto` read it already."""
+    vectors = external.read_vectors(pred_path, fmt, class_name, parsed)
     frame_ids, dataset = external.frame_ids_of(vectors.tokens, gt_path, pred_path)
     split_of = frame_splits(gt_path)
     if split:
@@ -360,10 +356,12 @@ def sweep_scores(source: ExternalFile, gt: dict, params: MetricParams, min_score
 
 
 def resolve_format(pred_path: Path, fmt: str, class_name: str | None, min_score: float | None, sweep: bool
-                   ) -> tuple[str, str | None, float | None]:  # fmt: skip
-    """(format, class name, kept score) after `auto` and the defaults; options of another format refused."""
+                   ) -> tuple[str, str | None, float | None, dict | None]:  # fmt: skip
+    """(format, class name, kept score, the JSON if `auto` parsed it) after `auto` and the defaults;
+    options of another format refused."""
+    parsed = None
     if fmt == "auto":
-        fmt = external.detect_format(pred_path)
+        fmt, parsed = external.detect_format(pred_path)
     if fmt not in external.FORMATS:
         raise GraphTableError(f"--format {fmt}: expected one of graph, maptrv2, cgnet, auto")
     if fmt == "graph":
@@ -382,13 +380,13 @@ def resolve_format(pred_path: Path, fmt: str, class_name: str | None, min_score:
             raise GraphTableError(
                 f"{pred_path}: a JSON file, not a graph table; pass --format maptrv2 or cgnet (or auto)"
             )
-        return fmt, None, None
+        return fmt, None, None, None
     class_name = class_name or "centerline"
     if class_name not in external.CLASSES[fmt]:
         raise GraphTableError(
             f"--class-name {class_name}: not a {fmt} class ({', '.join(external.CLASSES[fmt])})"
         )
-    return fmt, class_name, external.MIN_SCORE[fmt] if min_score is None else min_score
+    return fmt, class_name, external.MIN_SCORE[fmt] if min_score is None else min_score, parsed
 
 
 def score(
@@ -409,7 +407,7 @@ def score(
     `out`: a .json file of the result, or a run folder (`write_run`) that `cli report` reads.
     """
     check_draws(bootstrap)
-    fmt, class_name, min_score = resolve_format(Path(pred_path), fmt, class_name, min_score, sweep)
+    fmt, class_name, min_score, parsed = resolve_format(Path(pred_path), fmt, class_name, min_score, sweep)
     check_out(out)
     params.setdefault("bev_range", default_range(gt_path))
     metric_params = MetricParams(**params)
@@ -419,7 +417,7 @@ def score(
         graphs, frame_ids, info = graph_predictions(pred, Path(pred_path), Path(gt_path), gt, split)
     else:
         graphs, frame_ids, info, source = external_predictions(
-            Path(pred_path), Path(gt_path), fmt, class_name, min_score, split, workers
+            Path(pred_path), Path(gt_path), fmt, class_name, min_score, split, workers, parsed
         )
     pairs = [(graphs[f], gt[f]) for f in frame_ids]
     result, frame_counts = score_frames(pairs, metric_params, workers)
@@ -434,7 +432,8 @@ def score(
     if sweep:
         result["sweep"] = sweep_scores(source, gt, metric_params, sorted({*external.SWEEP, min_score}))
     if run_folder:
-        metrics = {**result, "data": str(gt_path), "split": "+".join(result["splits"] or []) or None,
+        split_text = "+".join(result["splits"] or []) or None
+        metrics = {**result, "data": str(Path(gt_path).resolve()), "split": split_text,
                    "model": "external", "modeling": external.MODELING[fmt], "params": None, "gflops": None,
                    "fps_net": None, "fps": None, "device": None, "precision": None}  # fmt: skip
         write_run(Path(out), graphs, frame_counts, metrics)

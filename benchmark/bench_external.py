@@ -89,10 +89,17 @@ def results_json(path: Path, tokens: list[str], frame_paths: list[list[np.ndarra
     path.write_text(json.dumps({"meta": {"use_camera": True}, "results": records}))
 
 
-def timed(command: list[str]) -> float:
+def timed(command: list[str]) -> tuple[float, float]:
+    """(wall seconds, peak resident MiB) of a command, run under a fresh parent whose only child it is."""
+    measure = (
+        "import resource, subprocess, sys; subprocess.run(sys.argv[1:], check=True, capture_output=True); "
+        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)"
+    )
     start = time.perf_counter()
-    subprocess.run(command, check=True, capture_output=True)
-    return time.perf_counter() - start
+    peak = subprocess.run(
+        [sys.executable, "-c", measure, *command], check=True, capture_output=True, text=True
+    )
+    return time.perf_counter() - start, int(peak.stdout) / 1024
 
 
 def main() -> None:
@@ -116,17 +123,20 @@ def main() -> None:
                        capture_output=True)  # fmt: skip
         table_command = [cli, "score", "--pred", str(tmp / "run" / "predictions.parquet"), *common]
         times: dict[str, list[float]] = {"json": [], "table": []}
+        peaks: dict[str, float] = {"json": 0.0, "table": 0.0}
         for _ in range(args.repeats):  # alternately: the machine's speed drifts within minutes
-            times["table"].append(timed(table_command))
-            times["json"].append(timed(json_command))
+            for name, command in (("table", table_command), ("json", json_command)):
+                seconds, peak = timed(command)
+                times[name].append(seconds)
+                peaks[name] = max(peaks[name], peak)
         metrics = json.loads((tmp / "run" / "metrics.json").read_text())
         size = results.stat().st_size / 2**20
     best = {k: min(v) for k, v in times.items()}
     print(f"{args.frames} frames, {metrics['external']['vectors_read']} vectors ({size:.0f} MiB of JSON), "
           f"{metrics['external']['vectors_kept']} centerlines kept, directed TOPO F1 "
           f"{metrics['directed']['topo']['f1']:.3f}; {args.workers} workers, bootstrap 1000")  # fmt: skip
-    print(f"cli score, graph table: {', '.join(f'{t:.1f}' for t in times['table'])} s")
-    print(f"cli score --format maptrv2: {', '.join(f'{t:.1f}' for t in times['json'])} s")
+    for name, label in (("table", "cli score, graph table"), ("json", "cli score --format maptrv2")):
+        print(f"{label}: {', '.join(f'{t:.1f}' for t in times[name])} s, peak {peaks[name]:.0f} MiB")
     print(f"ratio (best of each): {best['json'] / best['table']:.2f} x")
 
 

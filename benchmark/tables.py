@@ -100,10 +100,10 @@ def sweep_table(result: dict) -> tuple[str, Table]:
     )
     chosen = result["external"]["min_score"]
     for row in result["sweep"]:
-        mark = " (scored above)" if row["min_score"] == chosen else ""
+        mark = " *" if row["min_score"] == chosen else ""
         table.add_row(f"{row['min_score']:g}{mark}", str(row["vectors_kept"]),
                       *(f"{row[mode][metric]:.3f}" for mode in MODES for _, metric in METRICS))  # fmt: skip
-    return "F1 by kept score (--sweep; no intervals)", table
+    return "F1 by kept score (--sweep; *: the one scored above; no intervals)", table
 
 
 def plain(cell: str) -> str:

@@ -286,3 +286,113 @@ def viz(pred_path: Path, gt_path: Path, frame_id: str | None, out: Path, camera:
     )
     save_png(frame_view(prediction, gt[frame_id], params, title, view), out)
     return {"frame_id": frame_id, "scores": scores}
+
+
+@styled
+def save_png_palette(figure: Figure, path: Path, dpi: int = 110, colours: int = 256) -> Path:
+    """Write the figure to path as a PNG of at most `colours` colours (an adaptive octree palette, which
+    keeps a colour map's hues apart from a photograph's): camera pictures take a quarter of the bytes of a
+    full-colour PNG."""
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=dpi)
+    image = Image.open(buffer).convert("RGB").quantize(colours, method=Image.Quantize.FASTOCTREE)
+    write_atomic(Path(path), lambda tmp: image.save(tmp, format="PNG", optimize=True))
+    return Path(path)
+
+
+@styled
+def camera_overlays(
+    cameras: list[dict], title: str, columns: int = 3, max_depth: float = 40.0, panel_inches: float = 3.6
+) -> Figure:
+    """Camera images in a grid, each with points drawn on it: per camera a dict of `name`, `image` (H, W, 3)
+    and `layers`, a list of (uv (N, 2) pixels of that image, colour values (N,) or None, style dict of
+    `Axes.scatter`); values are coloured by depth in metres (turbo, near red, far blue, up to max_depth)."""
+    from matplotlib import colormaps
+
+    rows = -(-len(cameras) // columns)
+    aspect = max(c["image"].shape[0] / c["image"].shape[1] for c in cameras)
+    figure = Figure(
+        figsize=(panel_inches * columns, panel_inches * aspect * rows + 0.5), layout="constrained"
+    )
+    axes = figure.subplots(rows, columns, squeeze=False)
+    colour_map = colormaps["turbo_r"]
+    mappable = None
+    for ax, camera in zip(axes.ravel(), cameras):
+        ax.imshow(camera["image"])
+        for uv, values, style in camera["layers"]:
+            if values is None:
+                ax.scatter(uv[:, 0], uv[:, 1], **style)
+            else:
+                order = np.argsort(-values)  # near points drawn last, on top
+                mappable = ax.scatter(
+                    uv[order, 0], uv[order, 1], c=values[order], cmap=colour_map, vmin=0.0, vmax=max_depth,
+                    **style,
+                )  # fmt: skip
+        ax.set_xlim(-0.5, camera["image"].shape[1] - 0.5)
+        ax.set_ylim(camera["image"].shape[0] - 0.5, -0.5)
+        ax.set_title(camera["name"], fontsize=7)
+        ax.axis("off")
+    for ax in axes.ravel()[len(cameras) :]:
+        ax.axis("off")
+    if mappable is not None:
+        bar = figure.colorbar(mappable, ax=axes, shrink=0.6, pad=0.01, aspect=30)
+        bar.set_label("depth (m)", fontsize=6)
+        bar.ax.tick_params(labelsize=5)
+    figure.suptitle(title, fontsize=7)
+    return figure
+
+
+@styled
+def sweep_over_map(
+    points: np.ndarray,
+    ground_z: float,
+    edges: list[np.ndarray],
+    paint: list[tuple[np.ndarray, str]],
+    graph: LaneGraph,
+    crop: Range,
+    title: str,
+    intensity_max: float = 0.2,
+) -> Figure:
+    """A LiDAR sweep in the BEV frame over a map, two panels: the returns coloured by height above the
+    ground (ground_z) under the road edges (`edges`: (n, 2) polylines), and the returns within 0.3 m of the
+    ground coloured by intensity (0..1, white from intensity_max: asphalt returns are dark, paint bright)
+    under the painted lane boundaries (`paint`: (polyline, colour)) and the lane graph."""
+    figure = Figure(figsize=(PANEL_INCHES * 2.7, PANEL_INCHES * 2.3), layout="constrained")
+    axes = figure.subplots(1, 2)
+    height = points[:, 2] - ground_z
+    inside = (
+        (points[:, 0] >= crop.x_min) & (points[:, 0] <= crop.x_max)
+        & (points[:, 1] >= crop.y_min) & (points[:, 1] <= crop.y_max)
+    )  # fmt: skip
+    ax = axes[0]
+    bev_axes(ax, crop, "returns by height above the ground; road edges (red)")
+    shown = inside & (height < 2.5)
+    order = np.argsort(height[shown])
+    dots = ax.scatter(points[shown, 0][order], points[shown, 1][order], c=height[shown][order], s=0.6,
+                      cmap="viridis", vmin=-0.1, vmax=0.5, linewidths=0, rasterized=True)  # fmt: skip
+    for line in edges:
+        ax.plot(line[:, 0], line[:, 1], color="#e8221b", lw=0.7)
+    bar = figure.colorbar(dots, ax=ax, shrink=0.5, pad=0.01)
+    bar.set_label("height above ground_z (m)", fontsize=6)
+    bar.ax.tick_params(labelsize=5)
+    draw_ego(ax)
+    ax = axes[1]
+    bev_axes(ax, crop, "ground returns by intensity; paint (dashed), lane graph")
+    ground = inside & (np.abs(height) < 0.3)
+    order = np.argsort(points[ground, 3])
+    ax.set_facecolor("black")
+    dots = ax.scatter(points[ground, 0][order], points[ground, 1][order], c=points[ground, 3][order], s=1.0,
+                      cmap="gray", vmin=0.0, vmax=intensity_max, linewidths=0, rasterized=True)  # fmt: skip
+    bar = figure.colorbar(dots, ax=ax, shrink=0.5, pad=0.01, extend="max")
+    bar.set_label("intensity (0..1)", fontsize=6)
+    bar.ax.tick_params(labelsize=5)
+    for line, colour in paint:
+        ax.plot(line[:, 0], line[:, 1], color=colour, lw=0.6, ls=(0, (3, 2)), alpha=0.9)
+    draw_graph(ax, graph, lw=0.7, alpha=0.8)
+    draw_ego(ax)
+    figure.suptitle(title, fontsize=7)
+    return figure

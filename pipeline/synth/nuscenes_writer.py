@@ -35,6 +35,7 @@ class Channel:
     intrinsic: list[list[float]] = field(default_factory=list)
     width: int = 0
     height: int = 0
+    offset_us: int = 0  # when its sample_data is taken, relative to the sample (the LiDAR's key time)
 
     @property
     def extension(self) -> str:
@@ -47,6 +48,21 @@ LIDAR_TOP = Channel(
 )
 
 
+# When each camera's image is taken, relative to the LIDAR_TOP key time: the real rig triggers a camera as
+# the 20 Hz sweep crosses its view, clockwise from CAM_FRONT_LEFT, so that the images precede the LiDAR by
+# 0.5-43 ms, each with its own ego pose (v1.0-mini scene-0061's first sample: ../shared/data/nuscenes/
+# keyframe_scene-0061). At 10 m/s the ego moves 0.4 m in 43 ms: tens of pixels unless a projection goes
+# from the LiDAR's ego pose to the camera's through the global frame.
+CAMERA_OFFSET_US = {
+    "CAM_FRONT_LEFT": -43_100,
+    "CAM_FRONT": -35_500,
+    "CAM_FRONT_RIGHT": -27_600,
+    "CAM_BACK_RIGHT": -20_100,
+    "CAM_BACK": -10_400,
+    "CAM_BACK_LEFT": -500,
+}
+
+
 def camera_channels() -> list[Channel]:
     return [
         Channel(
@@ -57,6 +73,7 @@ def camera_channels() -> list[Channel]:
             c.intrinsics.tolist(),
             c.width,
             c.height,
+            CAMERA_OFFSET_US[c.name],
         )
         for c in NUSCENES_CAMERAS
     ]
@@ -207,20 +224,28 @@ def _add_scene(t: _Tables, plan: LogPlan, channels: list[Channel], map_name: str
             rotation=c.rotation,
             camera_intrinsic=c.intrinsic,
         )
-    ego = plan.ego_at(plan.frame_ns)
-    rotations = yaw_quaternion(ego[:, 2])
+    # each sensor's ego poses at its own times (the cameras' precede the sample's: CAMERA_OFFSET_US)
+    sensor_ns = {c.name: plan.frame_ns + c.offset_us * 1000 for c in channels}
+    ego = {name: plan.ego_at(ns) for name, ns in sensor_ns.items()}
+    rotations = {name: yaw_quaternion(poses[:, 2]) for name, poses in ego.items()}
     for k, ns in enumerate(plan.frame_ns):
-        us = int(ns) // 1000
-        t.add("sample", token=samples[k], timestamp=us, **_chain(samples, k), scene_token=scene_token)
+        t.add(
+            "sample",
+            token=samples[k],
+            timestamp=int(ns) // 1000,
+            **_chain(samples, k),
+            scene_token=scene_token,
+        )
         for c in channels:
             data = [t.token("sample_data", i, c.name, j) for j in range(len(samples))]
             pose = t.token("ego_pose", i, c.name, k)
+            us, xy = int(sensor_ns[c.name][k]) // 1000, ego[c.name][k, :2]
             t.add(
                 "ego_pose",
                 token=pose,
                 timestamp=us,
-                rotation=rotations[k].tolist(),
-                translation=[float(ego[k, 0]), float(ego[k, 1]), 0.0],
+                rotation=rotations[c.name][k].tolist(),
+                translation=[float(xy[0]), float(xy[1]), 0.0],
             )
             t.add(
                 "sample_data",
@@ -233,7 +258,7 @@ def _add_scene(t: _Tables, plan: LogPlan, channels: list[Channel], map_name: str
                 is_key_frame=True,
                 height=c.height,
                 width=c.width,
-                filename=sample_filename(plan, c, int(ns)),
+                filename=sample_filename(plan, c, int(sensor_ns[c.name][k])),
                 **_chain(data, k),
             )
 

@@ -1,5 +1,6 @@
 """Sensor data of every frame in both formats: camera images (nuScenes 6-camera rig, AV2 ring cameras) and
-LiDAR sweeps (nuScenes HDL-32E, AV2 two VLP-32C merged), all of the same world at the same time."""
+LiDAR sweeps (nuScenes HDL-32E, AV2 two VLP-32C merged), all of the same world at the frame's time, but for
+the nuScenes cameras, taken 0.5-43 ms before it as on the real rig (nuscenes_writer.CAMERA_OFFSET_US)."""
 
 from __future__ import annotations
 
@@ -69,8 +70,11 @@ def write_sensors(world: World, plan: LogPlan, av2_log_dir: Path, nuscenes_root:
     for ns, pose, cuboids in zip(plan.frame_ns, poses, frame_cuboids(world, plan), strict=True):
         ns = int(ns)
         for model, channel in zip(rig.nuscenes_cameras, camera_channels, strict=True):
-            path = nuscenes_root / nuscenes_writer.sample_filename(plan, channel, ns)
-            path.write_bytes(encode_jpeg(render(model, texture, pose, lighting, noise)))
+            taken = ns + channel.offset_us * 1000  # before the LiDAR's key time, from the ego pose then
+            path = nuscenes_root / nuscenes_writer.sample_filename(plan, channel, taken)
+            path.write_bytes(
+                encode_jpeg(render(model, texture, plan.ego_at(np.array([taken]))[0], lighting, noise))
+            )
         for model in rig.av2_cameras:
             path = av2_log_dir / "sensors" / "cameras" / model.spec.name / f"{ns}.jpg"
             path.write_bytes(encode_jpeg(render(model, texture, pose, lighting, noise)))

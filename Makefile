@@ -7,12 +7,18 @@ DEMO_SYNTH :=
 DEMO_TRAIN :=
 CLI := .venv/bin/cli
 
-.PHONY: demo demo-all test test-learning gpu-check gpu-smoke gpu-dryrun wheelhouse bench bench-train bench-step \
-	lint clean
+.PHONY: demo demo-all test test-learning wheel-smoke gpu-check gpu-smoke gpu-dryrun wheelhouse bench \
+	bench-train bench-step lint clean
 
+# The lock is the whole closure, installed --no-deps: one OpenCV, the headless build (av2 declares the GUI
+# build, opencv-python, whose cv2 overwrites the headless one's; a .venv made before drops it, and the
+# headless files it shared are installed again).
 $(STAMP): requirements.lock pyproject.toml
 	test -x $(PY) || python3.11 -m venv .venv || python3 -m venv .venv
-	$(PY) -m pip install --quiet -r requirements.lock
+	$(PY) -m pip install --quiet --no-deps -r requirements.lock
+	if $(PY) -m pip show --quiet opencv-python 2>/dev/null; then \
+		$(PY) -m pip uninstall --quiet --yes opencv-python && $(PY) -m pip install --quiet --no-deps \
+		--force-reinstall $$(grep -ix 'opencv-python-headless==[^ ]*' requirements.lock); fi
 	$(PY) -m pip install --quiet --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
@@ -52,6 +58,13 @@ test: $(STAMP)
 
 test-learning: $(STAMP)
 	LANEGRAPH_LEARNING_CHECK=1 $(PY) -m pytest -s tests/test_baselines_learning.py
+
+# The installed package away from the checkout (CI, after the tests; ~2 minutes on 2 cores, most of it pip
+# installing the lock): our wheel and the lock in a fresh venv, then cli --help, --version and synth ->
+# prepare -> score -> report --reference paper on a tiny dataset, from a temporary folder
+# (.ci/wheel_smoke.sh).
+wheel-smoke: $(STAMP)
+	PYTHON=$(PY) bash .ci/wheel_smoke.sh
 
 # make wheelhouse: the wheels for an offline GPU machine (default: its Python 3.12), binary ones only:
 # requirements.lock's pins of GPU_WHEELS, then the project's own wheel. GPU_WHEELS: the lock's packages that the GPU image

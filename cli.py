@@ -90,6 +90,41 @@ def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[s
             console.print(Text(line), soft_wrap=one_line)
 
 
+def version_text() -> str:
+    """The installed package's version, the metric's metric_version and the prepared data's schema_version
+    (CHANGELOG.md says what each bump means for old files); imports neither torch nor the models."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from benchmark.metrics import METRIC_VERSION
+    from pipeline.io import SCHEMA_VERSION
+
+    try:
+        package = version("lanegraph")
+    except PackageNotFoundError:  # a checkout on sys.path, never installed
+        package = "(not installed)"
+    versions = f"metric_version {METRIC_VERSION}, prepared-data schema_version {SCHEMA_VERSION}"
+    return f"lanegraph {package} ({versions})"
+
+
+def print_version(value: bool) -> None:
+    if value:
+        typer.echo(version_text())
+        raise typer.Exit()
+
+
+@app.callback()
+def main(
+    version: bool = typer.Option(
+        False,
+        "--version",
+        callback=print_version,
+        is_eager=True,
+        help="Print the package version, metric_version and the prepared data's schema_version, and exit",
+    ),
+) -> None:
+    pass
+
+
 @app.command(short_help="Write a synthetic raw dataset in the AV2 and nuScenes formats")
 def synth(
     out: Path = typer.Option(..., help="Folder to write OUT/av2/sensor/... and OUT/nuscenes/... into"),

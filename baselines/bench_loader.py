@@ -47,6 +47,8 @@ from rich.table import Table
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from pipeline.checkout import checkout_root  # noqa: E402
+
 PAPER_FPS = 16.5  # LaneGAP's forward rate on one RTX 3090 (paper, Tab. 1)
 FACTOR = {"nuscenes": 4, "av2": 8}  # real size / synthetic size (pipeline/synth/rig.py)
 SPLIT = "bench"  # the split of the frames that the copy keeps
@@ -171,6 +173,7 @@ def prepare_default(tmp: Path) -> list[Path]:
 
 
 def main() -> None:
+    checkout_root("baselines/bench_loader.py", "make bench in a clone")
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

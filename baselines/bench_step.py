@@ -23,6 +23,8 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from pipeline.checkout import checkout_root
+
 ROOT = Path(__file__).resolve().parent.parent
 # 4 logs (3 for training) x 12 frames: at batch 8, 4 steps an epoch
 DATA = {
@@ -109,6 +111,7 @@ def time_model(preset: str, model: str, data: Path, steps: int) -> dict:
 
 
 def main() -> None:
+    checkout_root("python -m baselines.bench_step", "make bench-step in a clone")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="gpu")
     parser.add_argument("--models", default="lanegap,hdmapnet,maptr,stsu")

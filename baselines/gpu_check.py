@@ -33,6 +33,8 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from pipeline.checkout import checkout_root
+
 MODELS = ("lanegap", "hdmapnet", "maptr", "stsu")
 SENSOR_GAP = CONSTANT_MARGIN = 0.15
 LANEGAP_TOPO = 0.5
@@ -144,6 +146,7 @@ def smoke_failures(out: Path, rows: list[dict]) -> list[str]:
 
 
 def main() -> int:
+    checkout_root("python -m baselines.gpu_check", "make gpu-check or make gpu-smoke in a clone")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("gpu_check"))
     parser.add_argument("--smoke", action="store_true", help="tiny data, one epoch per model, any device")

@@ -28,6 +28,7 @@ from benchmark.metrics import MetricParams  # noqa: E402
 from benchmark.path2graph import path2graph  # noqa: E402
 from benchmark.roundtrip import polylines_by_frame  # noqa: E402
 from benchmark.score import graph_row, graphs_from_table, score_pairs  # noqa: E402
+from pipeline.checkout import checkout_root  # noqa: E402
 from pipeline.io import SCHEMAS, read_table  # noqa: E402
 from pipeline.lane_graph import LaneGraph  # noqa: E402
 
@@ -79,6 +80,7 @@ def cli_score_peak_mib(pairs: list[tuple[LaneGraph, LaneGraph]], folder: Path) -
 
 
 def main() -> None:
+    checkout_root("benchmark/bench_metrics.py", "make bench in a clone")
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

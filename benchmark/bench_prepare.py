@@ -23,6 +23,9 @@ import tempfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from pipeline.checkout import checkout_root  # noqa: E402
 
 
 def make_root(source: Path, repeat: int, folder: Path) -> Path:
@@ -66,6 +69,7 @@ print(json.dumps({{"frames": summary["frames"], "seconds": elapsed, "start": sta
 
 
 def main() -> None:
+    checkout_root("benchmark/bench_prepare.py", "make bench in a clone")
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

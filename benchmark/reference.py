@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import tomllib
 from dataclasses import dataclass
+from importlib.resources import files
+from importlib.resources.abc import Traversable
 from pathlib import Path
 
-REFERENCE_FILE = Path(__file__).with_name("paper_reference.toml")
+# package data (pyproject.toml), found through the import system: in a checkout, an install or a zip alike
+REFERENCE_FILE = files("benchmark") / "paper_reference.toml"
 REFERENCES = ("paper",)  # the values of `cli report --reference`
 # the data file's score keys, by (mode, metric)
 SCORE_KEYS = {
@@ -68,12 +71,14 @@ class ReferenceTable:
         return f"the paper's {self.title} (`{self.label}`), " + ", ".join(where)
 
 
-def load_reference(name: str = "paper", path: Path = REFERENCE_FILE) -> dict[str, ReferenceTable]:
+def load_reference(
+    name: str = "paper", path: Path | Traversable = REFERENCE_FILE
+) -> dict[str, ReferenceTable]:
     """{label: table} of a reference; ValueError for another name or a malformed file."""
     if name not in REFERENCES:
         raise ValueError(f"--reference must be {' or '.join(REFERENCES)}, not {name!r}")
     try:
-        data = tomllib.loads(Path(path).read_text())
+        data = tomllib.loads((Path(path) if isinstance(path, str) else path).read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as error:
         raise ValueError(f"{path}: not valid TOML ({error})") from error
     tables = {}

@@ -28,9 +28,9 @@ from typer.testing import CliRunner
 
 from baselines.train import load_checkpoint, logged_lines
 from benchmark.metrics import METRIC_VERSION, MetricParams
-from pipeline.io import SCHEMA_VERSION
 from benchmark.score import score_pairs
 from cli import app
+from pipeline.io import SCHEMA_VERSION
 from pipeline.lane_graph import LaneGraph
 from pipeline.prepare import prepare
 from pipeline.targets import TargetOptions

@@ -43,8 +43,10 @@ class EncoderConfig:
     backbone_frozen_stages: int = 1  # as mmdet's: -1 none, 0 the stem, 1 the stem and layer1 (MapTR's)
     backbone_norm_eval: bool = True  # keep pretrained BatchNorm statistics
     feature_stride: int = 32  # the neck's output stride: 8, 16 or 32
-    # Heights above the ground of the 3D points of a BEV pillar: each frame's `ground_z` (about -1.84
-    # in nuScenes' LIDAR_TOP frame, -0.33 under AV2's rear axle) moves them into its BEV frame.
+    # Heights above the ground of the 3D points of a BEV pillar: each frame's ground plane moves them into
+    # its BEV frame, z = ground_z + a x + b y + height (frames.ground_z: about -1.84 in nuScenes' LIDAR_TOP
+    # frame, -0.33 under AV2's rear axle; frames.ground_slope (a, b): about (0.006, 0.024) in nuScenes', whose
+    # LIDAR_TOP is pitched on the ego, (0, 0) in AV2's).
     camera_heights: tuple[float, ...] = (-1.5, -0.5, 0.5, 1.5)
     kernel_size: tuple[int, int] = (3, 5)  # GKT kernel (rows, columns) around each projection
     camera_heads: int = 4

@@ -37,6 +37,7 @@ class Sample:
     paths: np.ndarray  # (G, N, 2) unit BEV coordinates
     seg: np.ndarray  # (bev_h, bev_w) int64: 1 lane, 0 background
     ground_z: float  # z of the ground under the BEV origin, in the BEV frame (frames.ground_z)
+    ground_slope: tuple[float, float]  # dz/dx, dz/dy of the ground plane, BEV frame (frames.ground_slope)
     raster: tuple[np.ndarray, np.ndarray] | None = None  # prepared (mask, direction bins), when needed
     pieces: np.ndarray | None = None  # (P, n, 2) unit BEV coordinates, when needed
     piece_links: np.ndarray | None = None  # (L, 2) int64 (src piece, dst piece), when needed
@@ -53,9 +54,17 @@ def resample_polyline(xy: np.ndarray, n: int) -> np.ndarray:
     return np.stack([np.interp(t, arc, xy[:, 0]), np.interp(t, arc, xy[:, 1])], 1)
 
 
+def decoded_extent(decoded: int, size: int, reduction: int) -> int:
+    """How many pixels of the full-size image (`size` of them) the `decoded` pixels of an image read at
+    1/reduction span. A JPEG decoded at 1/r gives ceil(size / r) pixels of r x r full-size pixels each, the
+    last one partly the encoder's edge padding: decoded * r (904 rows for 900 at 1/8), not size. OpenCV
+    resizes other formats to floor(size / r) pixels over the whole image: size."""
+    return decoded * reduction if decoded * reduction >= size else size
+
+
 def read_image(path: Path, scale: float, width: int, height: int) -> tuple[np.ndarray, float, float]:
     """RGB uint8 image (H, W, 3) of the camera of calibrated size `width` x `height`, resized by `scale`;
-    returns it with the exact x / y scale factors."""
+    returns it with the exact x / y scale factors: full-size pixel u is at (u + 0.5) * s - 0.5 in it."""
     # JPEG decodes at 1/2, 1/4 or 1/8 size directly, several times faster than a full decode: use
     # the smallest one still at least as large as the target.
     reduction = max(r for r in (1, 2, 4, 8) if 1 / r >= scale)
@@ -67,9 +76,20 @@ def read_image(path: Path, scale: float, width: int, height: int) -> tuple[np.nd
     if reduction == 1:
         height, width = image.shape[:2]
     new_w, new_h = max(1, round(width * scale)), max(1, round(height * scale))
+    # the scale of the decoded image's own extent: a 900-row JPEG at 1/8 decodes to 113 rows of 8, whose
+    # 904 rows the resize to 112 maps (the scale 112 / 900 would put the bottom rows 0.5 px off)
+    extent_w = decoded_extent(image.shape[1], width, reduction)
+    extent_h = decoded_extent(image.shape[0], height, reduction)
     if (new_w, new_h) != (image.shape[1], image.shape[0]):
         image = cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_AREA)
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB), new_w / width, new_h / height
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB), new_w / extent_w, new_h / extent_h
+
+
+def height_above_ground(points: np.ndarray, ground_z: float, ground_slope) -> np.ndarray:
+    """(P,) height of float32 BEV points (P, >= 3) above the ground plane z = ground_z + a x + b y
+    (frames.ground_z, ground_slope), in float32: on level ground, the points' z minus ground_z bit for bit."""
+    a, b = ground_slope
+    return points[:, 2] - (ground_z + a * points[:, 0] + b * points[:, 1])
 
 
 def read_lidar(path: Path) -> np.ndarray:
@@ -153,6 +173,9 @@ class PreparedDataset(torch.utils.data.Dataset):
         unknown = [f["frame_id"] for f in frames if f["ground_z"] is None]
         if unknown:
             raise ValueError(f"{self.data_dir / 'frames'}: frame {unknown[0]}: ground_z is null")
+        unknown = [f["frame_id"] for f in frames if f["ground_slope"] is None or len(f["ground_slope"]) != 2]
+        if unknown:
+            raise ValueError(f"{self.data_dir / 'frames'}: frame {unknown[0]}: ground_slope is not 2 numbers")
         self.frames = frames
         self.needs = needs
         frame_ids = set(f["frame_id"] for f in frames)
@@ -214,7 +237,8 @@ class PreparedDataset(torch.utils.data.Dataset):
             seg = lane_mask_from_raster(decoded[0], bev_h, bev_w)
         else:
             seg = lane_mask_from_paths(paths_unit, bev_h, bev_w)
-        sample = Sample(frame["frame_id"], None, None, None, None, None, paths_unit, seg, frame["ground_z"])
+        sample = Sample(frame["frame_id"], None, None, None, None, None, paths_unit, seg, frame["ground_z"],
+                        tuple(frame["ground_slope"]))  # fmt: skip
         if "raster" in self.needs:
             sample.raster = decoded
         if "pieces" in self.needs:
@@ -272,7 +296,8 @@ class PreparedDataset(torch.utils.data.Dataset):
         ).astype(np.float32)
         encoder = self.config.encoder
         (x0, x1), (y0, y1), (z0, z1) = encoder.x_range, encoder.y_range, encoder.z_range
-        x, y, z = points[:, 0], points[:, 1], points[:, 2] - frame["ground_z"]  # z_range: above the ground
+        x, y = points[:, 0], points[:, 1]
+        z = height_above_ground(points, frame["ground_z"], frame["ground_slope"])  # z_range: above the ground
         points = points[(x >= x0) & (x <= x1) & (y >= y0) & (y <= y1) & (z >= z0) & (z <= z1)]
         limit = self.config.data.max_points
         if len(points) > limit:
@@ -329,7 +354,10 @@ def pinned(record):
 
 
 def collate(samples: list[Sample]) -> Batch:
-    sensors = SensorBatch(ground_z=torch.tensor([s.ground_z for s in samples], dtype=torch.float32))
+    sensors = SensorBatch(
+        ground_z=torch.tensor([s.ground_z for s in samples], dtype=torch.float32),
+        ground_slope=torch.tensor([s.ground_slope for s in samples], dtype=torch.float32).view(-1, 2),
+    )
     if samples[0].images is not None:
         height = max(s.images.shape[2] for s in samples)
         width = max(s.images.shape[3] for s in samples)

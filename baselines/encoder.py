@@ -42,6 +42,9 @@ class SensorBatch:
     points_mask: torch.Tensor | None = None  # (B, P) True for real points
     # (B,) z of the ground under the BEV origin, in the BEV frame (frames.ground_z); None: z = 0
     ground_z: torch.Tensor | None = None
+    # (B, 2) dz/dx, dz/dy of the ground plane in the BEV frame (frames.ground_slope): the ground is
+    # z = ground_z + a x + b y (nuScenes' LIDAR_TOP is tilted on the ego); None: level
+    ground_slope: torch.Tensor | None = None
 
     def to(self, device: torch.device | str) -> SensorBatch:
         moved = {f.name: getattr(self, f.name) for f in fields(self)}
@@ -73,6 +76,10 @@ class SensorBatch:
         reference = self.images if self.images is not None else self.points
         return torch.zeros(self.batch_size, device=reference.device)
 
+    def slope(self) -> torch.Tensor | None:
+        """(B, 2) ground_slope, None (level) where it is not given."""
+        return None if self.ground_slope is None else self.ground_slope.float()
+
 
 def bev_cell_centres(config: EncoderConfig) -> torch.Tensor:
     """(bev_h, bev_w, 2) x, y in metres of each BEV cell centre (row 0 = front)."""
@@ -83,11 +90,26 @@ def bev_cell_centres(config: EncoderConfig) -> torch.Tensor:
     return torch.stack([grid_x, grid_y], -1)
 
 
-def above_ground_to_bev(points: torch.Tensor, ground_z: torch.Tensor) -> torch.Tensor:
-    """Points (P, 3) whose z is the height above the ground -> (B, P, 3) in the BEV frame of each
-    of B frames, given their ground_z (B,)."""
+def ground_height(
+    xy: torch.Tensor, ground_z: torch.Tensor, ground_slope: torch.Tensor | None
+) -> torch.Tensor:
+    """(B, P) z of the ground under BEV points xy (B, P, 2) of B frames, in each one's BEV frame: the plane
+    z = ground_z + a x + b y of their ground_z (B,) and ground_slope (B, 2) (frames.ground_z, ground_slope);
+    ground_z alone where ground_slope is None. A slope of (0, 0) gives ground_z bit for bit (x * 0 is +-0)."""
+    height = ground_z[:, None]
+    if ground_slope is None:
+        return height.expand(xy.shape[:-1])
+    return height + ground_slope[:, 0:1] * xy[..., 0] + ground_slope[:, 1:2] * xy[..., 1]
+
+
+def above_ground_to_bev(
+    points: torch.Tensor, ground_z: torch.Tensor, ground_slope: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Points (P, 3) whose z is the height above the ground -> (B, P, 3) in the BEV frame of each of B
+    frames, given their ground plane: ground_z (B,) and ground_slope (B, 2) (`ground_height`). The height is
+    added along the BEV frame's z, straight above the point (x, y) of the ground plane."""
     lifted = points.repeat(len(ground_z), 1, 1)
-    lifted[..., 2] += ground_z[:, None]
+    lifted[..., 2] += ground_height(lifted[..., :2], ground_z, ground_slope)
     return lifted
 
 
@@ -208,7 +230,8 @@ class CameraEncoder(nn.Module):
             ],
             -1,
         )
-        # (Q * Z, 3), z above the ground: each frame's ground_z moves them into its BEV frame
+        # (Q * Z, 3), z above the ground: each frame's ground plane (ground_z, ground_slope) moves them into
+        # its BEV frame
         self.register_buffer("pillar_points", pillars.view(-1, 3), persistent=False)
         reference = config.metres_to_unit(centres.view(-1, 1, 2))  # (Q, 1, 2) unit coordinates
         self.register_buffer("reference", reference, persistent=False)
@@ -245,7 +268,7 @@ class CameraEncoder(nn.Module):
         """features (B, Ncam, C, Hf, Wf) -> sampled (B, C, Q, S) and mask (B, Q, S)."""
         config = self.config
         num_batch, cameras, dim, feature_h, feature_w = features.shape
-        points = above_ground_to_bev(self.pillar_points, batch.ground())
+        points = above_ground_to_bev(self.pillar_points, batch.ground(), batch.slope())
         pixels, visible = project_points(points, batch.intrinsics, batch.sensor_to_ego, batch.image_sizes)
         views = min(config.max_views, cameras)
         # The first `views` cameras that see each point (a point is seen by one, or two in overlaps).
@@ -333,9 +356,9 @@ class PillarEncoder(nn.Module):
 
     def forward(self, batch: SensorBatch) -> torch.Tensor:
         config = self.config
-        # z above the ground, for the z_range and as a feature: the same on both datasets' frames
+        # z above the ground plane, for the z_range and as a feature: the same on both datasets' frames
         points, points_mask = batch.points.clone(), batch.points_mask
-        points[..., 2] -= batch.ground()[:, None]
+        points[..., 2] -= ground_height(points[..., :2], batch.ground(), batch.slope())
         num_batch = points.shape[0]
         (x0, x1), (y0, y1), (z0, z1) = config.x_range, config.y_range, config.z_range
         cell_w = (x1 - x0) / self.grid_w

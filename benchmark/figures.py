@@ -187,8 +187,8 @@ def frame_view(
 
 def front_camera(data: Path, frame: dict) -> dict:
     """The frame's camera that looks most along +y (forward), its image, and a function that projects a
-    graph laid on the ground (frames.ground_z) into it with the encoder's own `project_points`
-    (pipeline/camera.py)."""
+    graph laid on the ground (the plane of frames.ground_z and ground_slope) into it with the encoder's own
+    `project_points` (pipeline/camera.py)."""
     import json
 
     import cv2
@@ -227,7 +227,8 @@ def front_camera(data: Path, frame: dict) -> dict:
         if not lines:
             return []
         ground = np.concatenate(lines)
-        ground = np.column_stack([ground, np.full(len(ground), frame["ground_z"])])
+        a, b = frame["ground_slope"]
+        ground = np.column_stack([ground, frame["ground_z"] + a * ground[:, 0] + b * ground[:, 1]])
         uv, visible = project_points(
             torch.tensor(ground, dtype=torch.float32), intrinsics, sensor_to_ego, sizes
         )
@@ -350,6 +351,7 @@ def camera_overlays(
 def sweep_over_map(
     points: np.ndarray,
     ground_z: float,
+    ground_slope: tuple[float, float],
     edges: list[np.ndarray],
     paint: list[tuple[np.ndarray, str]],
     graph: LaneGraph,
@@ -358,12 +360,14 @@ def sweep_over_map(
     intensity_max: float = 0.2,
 ) -> Figure:
     """A LiDAR sweep in the BEV frame over a map, two panels: the returns coloured by height above the
-    ground (ground_z) under the road edges (`edges`: (n, 2) polylines), and the returns within 0.3 m of the
-    ground coloured by intensity (0..1, white from intensity_max: asphalt returns are dark, paint bright)
-    under the painted lane boundaries (`paint`: (polyline, colour)) and the lane graph."""
+    ground (the plane z = ground_z + a x + b y of frames.ground_z and ground_slope) under the road edges
+    (`edges`: (n, 2) polylines), and the returns within 0.3 m of the ground coloured by intensity (0..1,
+    white from intensity_max: asphalt returns are dark, paint bright) under the painted lane boundaries
+    (`paint`: (polyline, colour)) and the lane graph."""
     figure = Figure(figsize=(PANEL_INCHES * 2.7, PANEL_INCHES * 2.3), layout="constrained")
     axes = figure.subplots(1, 2)
-    height = points[:, 2] - ground_z
+    a, b = ground_slope
+    height = points[:, 2] - (ground_z + a * points[:, 0] + b * points[:, 1])
     inside = (
         (points[:, 0] >= crop.x_min) & (points[:, 0] <= crop.x_max)
         & (points[:, 1] >= crop.y_min) & (points[:, 1] <= crop.y_max)
@@ -377,7 +381,7 @@ def sweep_over_map(
     for line in edges:
         ax.plot(line[:, 0], line[:, 1], color="#e8221b", lw=0.7)
     bar = figure.colorbar(dots, ax=ax, shrink=0.5, pad=0.01)
-    bar.set_label("height above ground_z (m)", fontsize=6)
+    bar.set_label("height above the ground (m)", fontsize=6)
     bar.ax.tick_params(labelsize=5)
     draw_ego(ax)
     ax = axes[1]

@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 
 from pipeline.errors import DataError
 
-SCHEMA_VERSION = 3  # 2: frames.ground_z; 3: frames.sample_token
+SCHEMA_VERSION = 3  # 2: frames.ground_z; 3: frames.sample_token and frames.ground_slope
 TABLES = ("frames", "graphs", "paths", "pieces", "piece_links", "rasters")
 
 f32_list = pa.list_(pa.float32())
@@ -46,6 +46,7 @@ SCHEMAS = {
             ("lidar_path", pa.string()),
             ("lidar_to_ego", f64_list),
             ("ground_z", pa.float32()),
+            ("ground_slope", f64_list),  # (2) dz/dx, dz/dy: the ground is z = ground_z + a x + b y
             ("n_vertices", pa.int32()),
             ("n_edges", pa.int32()),
             ("n_paths", pa.int32()),

@@ -176,6 +176,7 @@ def frame_row(frame: Frame, targets: FrameTargets) -> dict:
         "lidar_path": frame.lidar_path,
         "lidar_to_ego": np.asarray(frame.lidar_to_ego, np.float64).ravel().tolist(),
         "ground_z": frame.ground_z,
+        "ground_slope": [float(v) for v in frame.ground_slope],
         "n_vertices": len(targets.graph.x),
         "n_edges": len(targets.graph.src),
         "n_paths": len(targets.paths.vertex_ids),

@@ -43,6 +43,9 @@ class Frame:
     lidar_path: str = ""  # relative to the dataset root; "" where absent
     lidar_to_ego: np.ndarray = field(default_factory=lambda: np.eye(4))
     ground_z: float = 0.0  # z, in the BEV frame, of the ground under the BEV origin
+    # dz/dx, dz/dy of the ground plane in the BEV frame: the ground is z = ground_z + a x + b y (nuScenes:
+    # LIDAR_TOP is tilted on the ego; AV2: level)
+    ground_slope: list[float] = field(default_factory=lambda: [0.0, 0.0])
     sample_token: str | None = None  # nuScenes: the sample's token, the id other codebases' results use
 
 

@@ -94,8 +94,8 @@ def write_toy_dataset(root: Path, frames: int = 6, split: str = "train") -> Path
             {"frame_id": frame_id, "dataset": "av2", "split": split, "log_id": "toy", "timestamp_ns": i,
              "city": "toy", "pose_translation": [0.0, 0.0, 0.0], "pose_rotation": [1.0, 0.0, 0.0, 0.0],
              "cameras": cameras, "lidar_path": lidar, "lidar_to_ego": np.eye(4).flatten().tolist(),
-             "ground_z": 0.0, "n_vertices": 14, "n_edges": 12, "n_paths": 2, "n_pieces": 2, "n_junctions": 0,
-             "path_cap_hit": False}
+             "ground_z": 0.0, "ground_slope": [0.0, 0.0], "n_vertices": 14, "n_edges": 12, "n_paths": 2,
+             "n_pieces": 2, "n_junctions": 0, "path_cap_hit": False}
         )  # fmt: skip
     graph_rows = []
     for frame in frame_rows:

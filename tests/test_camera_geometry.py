@@ -2,8 +2,9 @@
 prepared frame's BEV frame by its pose and projected by the encoder's `project_points` (pipeline/camera.py)
 through the frame's calibration (as `cli prepare` wrote it and `baselines.data` resized it), lands on the
 bright paint that synth drew in that camera's image; the lane centres between the lines land on asphalt.
-The same holds for the tiny preset's own pillar height, lifted onto each frame's ground by the
-`ground_z` that `cli prepare` recorded (nuScenes' LIDAR_TOP frame is 1.84 m above the ground)."""
+The same holds for the tiny preset's own pillar height, lifted onto each frame's ground by the ground plane
+that `cli prepare` recorded (`ground_z`, `ground_slope`: nuScenes' LIDAR_TOP is 1.84 m above the ground and
+pitched 1.4 deg on the ego, as the real rig, so that the ground rises 2.4 % forward in its frame)."""
 
 from __future__ import annotations
 
@@ -52,11 +53,12 @@ def grey_levels(sample, points: np.ndarray) -> np.ndarray:
 
 
 def on_default_pillars(frame: dict, points: np.ndarray) -> np.ndarray:
-    """BEV points moved to the tiny preset's pillar height above the frame's ground, as the camera
+    """BEV points moved to the tiny preset's pillar height above the frame's ground plane, as the camera
     encoder places its pillar points."""
     (height,) = resolve_config("tiny").encoder.camera_heights
     above_ground = torch.from_numpy(np.column_stack([points[:, :2], np.full(len(points), height)])).float()
-    return above_ground_to_bev(above_ground, torch.tensor([frame["ground_z"]]))[0].numpy()
+    slope = torch.tensor([frame["ground_slope"]], dtype=torch.float32)
+    return above_ground_to_bev(above_ground, torch.tensor([frame["ground_z"]]), slope)[0].numpy()
 
 
 @pytest.mark.parametrize("dataset", ["av2", "nuscenes"])
@@ -89,10 +91,34 @@ def test_bev_points_project_onto_the_paint_synth_drew(synth_prepared, dataset, h
 
 
 def test_prepare_records_the_ground_under_the_bev_origin(synth_prepared):
-    """nuScenes: LIDAR_TOP is 1.84 m above the ground; AV2: the synthetic egovehicle origin is on it."""
-    for dataset, expected in (("nuscenes", -1.84), ("av2", 0.0)):
-        ground = read_table(synth_prepared[dataset], "frames", columns=["ground_z"])["ground_z"].to_numpy()
+    """nuScenes: LIDAR_TOP is 1.84 m above the ground, which rises 2.4 % forward in its frame (it is pitched
+    on the ego as the real rig: pipeline/synth/rig.py); AV2: the synthetic egovehicle origin is on the
+    ground, level."""
+    for dataset, expected, slope in (("nuscenes", -1.84, (0.0059, 0.0242)), ("av2", 0.0, (0.0, 0.0))):
+        frames = read_table(synth_prepared[dataset], "frames", columns=["ground_z", "ground_slope"])
+        ground = frames["ground_z"].to_numpy()
         assert len(ground) > 0 and np.allclose(ground, expected, atol=0.01), (dataset, ground)
+        slopes = np.array(frames["ground_slope"].to_pylist())
+        assert np.allclose(slopes, slope, atol=1e-4), (dataset, slopes[0])
+    assert (np.array(read_table(synth_prepared["av2"], "frames")["ground_slope"].to_pylist()) == 0).all()
+
+
+def test_the_synthetic_lidar_ground_is_on_the_recorded_plane(synth_prepared):
+    """The synthetic nuScenes sweep is written in the tilted LIDAR_TOP frame: its ground returns lie on the
+    plane that `cli prepare` recorded (z = ground_z + a x + b y), not on the flat z = ground_z (0.4-0.7 m off
+    it 20-30 m ahead and behind), as the real key frame's (tests/test_real_sensors.py)."""
+    config = resolve_config("tiny")
+    config.encoder.modality = "lidar"
+    data = PreparedDataset(synth_prepared["nuscenes"], "mini_train", config)
+    for index in (0, len(data) // 2):
+        frame, points = data.frames[index], data[index].points.astype(np.float64)
+        (a, b), ground_z = frame["ground_slope"], frame["ground_z"]
+        above_plane = points[:, 2] - (ground_z + a * points[:, 0] + b * points[:, 1])
+        for far in (points[:, 1] < -20, points[:, 1] > 20):
+            on_plane = np.abs(above_plane[far]) < 0.1  # the range noise is 0.02 m
+            assert on_plane.sum() > 100, (index, far.sum(), on_plane.sum())  # measured: 154-191 of 154-399
+            assert np.abs(np.median(above_plane[far][on_plane])) < 0.01  # measured: 0.0002 m
+            assert np.abs(np.median(points[far][on_plane, 2] - ground_z)) > 0.4  # measured: 0.61-0.63 m
 
 
 @pytest.mark.parametrize("dataset", ["av2", "nuscenes"])

@@ -125,7 +125,7 @@ def test_a_batch_pins_every_tensor(monkeypatch, tmp_path):
     assert isinstance(batch.pin_memory(), Batch)
     tensors = [v for v in vars(batch.sensors).values() if isinstance(v, torch.Tensor)]
     tensors += [batch.targets.seg, *batch.targets.paths]
-    assert len(tensors) == 10 and {id(t) for t in tensors} <= {id(t) for t in pinned}
+    assert len(tensors) == 11 and {id(t) for t in tensors} <= {id(t) for t in pinned}  # 8 sensor fields
 
 
 def test_run_json_says_the_schedule_and_the_accumulation(tmp_path):

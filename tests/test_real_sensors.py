@@ -5,12 +5,17 @@ real AV2 sweep with real calibration, from ../shared/data, go through `cli prepa
 
 - nuScenes: the LiDAR comes out in the LIDAR_TOP frame unchanged; the projection of its points into each
   camera equals nuscenes-devkit's chain (calibrated_sensor and ego_pose through the global frame, as
-  `NuScenesExplorer.map_pointcloud_to_image`) within 0.5 px of the resized image, and mmdetection3d's
-  `lidar2cam` and `cam2img` within 1 px; `frames.ground_z` is within 0.2 m of the LiDAR's ground returns.
+  `NuScenesExplorer.map_pointcloud_to_image`) within 0.05 px of the resized image (the issue asked 0.5),
+  and mmdetection3d's `lidar2cam` and `cam2img` within 0.01 px (1); `frames.ground_z` is within 0.2 m of
+  the LiDAR's ground returns, and the ground plane (`frames.ground_slope`: LIDAR_TOP is pitched on the ego)
+  within 0.2 m of its road returns from y = -30 to 30 m, where the camera encoder's sampling points land on
+  the road in the images.
 - AV2: the float16 sweep comes out as the av2 API's egovehicle points turned by +90 deg (docs/DATA.md,
-  1e-3 m); its projection into each ring camera equals `PinholeCamera.project_ego_to_img` within 0.5 px of
-  the resized image (blank JPEGs of each camera's calibrated size stand in for the unpublished images);
-  `frames.ground_z` is within 0.2 m of the sweep's ground returns.
+  1e-3 m); its projection into each ring camera equals `PinholeCamera.project_ego_to_img` within 0.01 px
+  (0.5) of the resized image (blank JPEGs of each camera's calibrated size stand in for the unpublished
+  images); `frames.ground_z` is within 0.2 m of the sweep's ground returns (the ground is level: slope 0).
+- The loader's images (every preset's scale, JPEG decoded at 1/2 or 1/8) show the photograph where their
+  intrinsics say, within 0.1 px.
 
 The fixtures (tests/conftest.py) skip, naming the missing path, without ../shared/data. The pictures of
 docs/REAL_SENSORS.md come from `test_pictures` with LANEGRAPH_REAL_SENSOR_FIGURES=docs.
@@ -19,6 +24,7 @@ docs/REAL_SENSORS.md come from `test_pictures` with LANEGRAPH_REAL_SENSOR_FIGURE
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -45,10 +51,12 @@ def load_frame(prepared: Path, split: str, preset: str):
     return data.frames[0], data[0], config
 
 
-def in_loader_box(points_bev: np.ndarray, ground_z: float, config) -> np.ndarray:
-    """The points that the loader keeps: inside the BEV range and the height range above the ground."""
+def in_loader_box(points_bev: np.ndarray, frame: dict, config) -> np.ndarray:
+    """The points that the loader keeps: inside the BEV range and the height range above the ground plane
+    (float32 arithmetic, as the loader's)."""
     (x0, x1), (y0, y1), (z0, z1) = config.encoder.x_range, config.encoder.y_range, config.encoder.z_range
-    x, y, z = points_bev[:, 0], points_bev[:, 1], points_bev[:, 2] - ground_z
+    (a, b), x, y = frame["ground_slope"], points_bev[:, 0], points_bev[:, 1]
+    z = points_bev[:, 2] - (frame["ground_z"] + a * x + b * y)
     return (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1) & (z >= z0) & (z <= z1)
 
 
@@ -60,6 +68,15 @@ def our_pixels(sample, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         *(torch.from_numpy(a)[None] for a in (sample.intrinsics, sample.sensor_to_ego, sample.image_sizes)),
     )
     return pixels[0].numpy().astype(np.float64), visible[0].numpy()
+
+
+def resized_scale(full: int, resized: int, preset_scale: float) -> float:
+    """The scale by which the loader's image of `resized` pixels shows the photograph of `full` pixels, along
+    one axis: JPEG decodes at 1/r (the smallest of 1/2, 1/4, 1/8 still at least preset_scale, else whole)
+    to ceil(full / r) pixels of r full-size pixels each (900 rows at 1/8: 113 rows over 904), which the
+    loader resizes to `resized`."""
+    r = max(k for k in (1, 2, 4, 8) if 1 / k >= preset_scale)
+    return resized / (math.ceil(full / r) * r)
 
 
 def to_resized(uv: np.ndarray, scale_x: float, scale_y: float) -> np.ndarray:
@@ -136,8 +153,9 @@ def test_nuscenes_prepare_keeps_the_real_sample(real_nuscenes_prepared, nuscenes
 def test_nuscenes_lidar_comes_out_in_the_lidar_top_frame_unchanged(nuscenes_loaded, real_nuscenes_keyframe):
     frame, sample, config = nuscenes_loaded
     raw = raw_pcd(real_nuscenes_keyframe, frame)
-    keep = in_loader_box(raw, frame["ground_z"], config)
-    assert 10_000 < keep.sum() < config.data.max_points  # measured: 20,953 of the 34,688 returns
+    keep = in_loader_box(raw, frame, config)
+    # measured: 27,451 of the 34,688 returns (27,501 above the flat z = ground_z)
+    assert 10_000 < keep.sum() < config.data.max_points
     np.testing.assert_array_equal(sample.points[:, :3], raw[keep, :3])
     np.testing.assert_array_equal(sample.points[:, 3], raw[keep, 3] / np.float32(255))
     assert raw[:, 3].max() == 255 and sample.points[:, 3].max() == 1.0  # nuScenes intensities are 0-255
@@ -187,7 +205,7 @@ def nuscenes_projection_errors(nusc, source: dict, frame: dict, sample, config, 
     pixels of the resized image, over the points that the devkit keeps in that camera."""
     scale, crop_top = config.data.image_settings("nuscenes", synthetic=False)
     assert crop_top == 0.0  # real images are not cropped (the paper's setting)
-    keep = in_loader_box(raw, frame["ground_z"], config)
+    keep = in_loader_box(raw, frame, config)
     np.testing.assert_array_equal(sample.points[:, :3], raw[keep, :3])
     ours, visible = our_pixels(sample, sample.points)
     sample_record = nusc.get("sample", source["sample_token"])
@@ -195,7 +213,7 @@ def nuscenes_projection_errors(nusc, source: dict, frame: dict, sample, config, 
     for c, camera in enumerate(frame["cameras"]):
         height, width = sample.image_sizes[c]
         assert (width, height) == (round(1600 * scale), round(900 * scale))
-        sx, sy = width / camera["width"], height / camera["height"]
+        sx, sy = resized_scale(camera["width"], width, scale), resized_scale(camera["height"], height, scale)
         lidar_token, camera_token = sample_record["data"]["LIDAR_TOP"], sample_record["data"][camera["name"]]
         uv, depth, kept = devkit_projection(nusc, lidar_token, camera_token, raw[keep])
         seen = visible[c]
@@ -235,8 +253,8 @@ def test_nuscenes_projection_matches_devkit_and_mmdet3d(
     assert sum(e["points"] for e in errors.values()) > 10_000
     for name, error in errors.items():
         assert error["points"] > 300, (name, error)
-        assert error["devkit"] < 0.5, (name, error)
-        assert error["mmdet3d"] < 1.0, (name, error)
+        assert error["devkit"] < 0.05, (name, error)
+        assert error["mmdet3d"] < 0.01, (name, error)
 
 
 def test_nuscenes_ground_z_is_on_the_lidar_ground(real_nuscenes_prepared, real_nuscenes_keyframe):
@@ -246,37 +264,72 @@ def test_nuscenes_ground_z_is_on_the_lidar_ground(real_nuscenes_prepared, real_n
     assert abs(frame["ground_z"] - ground) < 0.2, (frame["ground_z"], ground)
 
 
-def test_nuscenes_ground_is_the_ego_plane_not_flat_in_lidar_top(
-    nusc, real_nuscenes_prepared, real_nuscenes_keyframe
-):
-    """A finding of the real key frame (docs/REAL_SENSORS.md), not fixed here: LIDAR_TOP is mounted on the
-    ego pitched 1.4 deg nose-down (calibrated_sensor), so that in the BEV frame (LIDAR_TOP's) the road is
-    the ego's ground plane z_ego = 0, which rises 2.4 % forward: the LiDAR's road returns along the ego's
-    lane lie on that plane within 0.07 m from y = -30 to 30 m, and up to 0.72 m off the flat z = ground_z
-    on which the camera encoder lays its BEV points (`above_ground_to_bev`): ground_z is right under the
-    origin only. Measured, road minus ground_z per 5 m of y: -0.72 at y -30..-25, +0.65 at 25..30."""
-    from pyquaternion import Quaternion
-
+def test_nuscenes_ground_plane_is_the_calibrated_ego_plane(real_nuscenes_prepared, nuscenes_source):
+    """frames.ground_z and ground_slope are the ego's ground plane (ego z = 0) in LIDAR_TOP coordinates:
+    mmdetection3d's lidar2ego gives the same plane, z = ground_z + a x + b y, rising 2.4 % forward."""
     (frame,) = read_table(real_nuscenes_prepared, "frames").to_pylist()
-    sample = nusc.get("sample", frame["sample_token"])
-    calib = nusc.get(
-        "calibrated_sensor", nusc.get("sample_data", sample["data"]["LIDAR_TOP"])["calibrated_sensor_token"]
-    )
-    up = Quaternion(calib["rotation"]).rotation_matrix[2]  # the ego's z axis in LIDAR_TOP coordinates
-    raw = raw_pcd(real_nuscenes_keyframe, frame)
-    off_plane, off_flat = [], []
+    lidar2ego = np.array(nuscenes_source["lidar"]["lidar2ego"])
+    up, height = lidar2ego[2, :3], lidar2ego[2, 3]  # the ego's z axis in LIDAR_TOP coordinates; its height
+    assert frame["ground_z"] == pytest.approx(-height / up[2], abs=1e-6)  # float32 in the table
+    np.testing.assert_allclose(frame["ground_slope"], [-up[0] / up[2], -up[1] / up[2]], atol=1e-6)
+    assert frame["ground_slope"][1] == pytest.approx(0.0242, abs=1e-4)
+
+
+def test_nuscenes_ground_plane_is_on_the_lidar_road_and_so_are_the_sampling_points(
+    real_nuscenes_prepared, real_nuscenes_keyframe
+):
+    """A finding of the real key frame, fixed (docs/REAL_SENSORS.md): LIDAR_TOP is mounted on the ego pitched
+    1.4 deg nose-down, so that in the BEV frame (LIDAR_TOP's) the road, the ego's ground plane, rises 2.4 %
+    forward; `cli prepare` records that plane (frames.ground_z, ground_slope) and the camera encoder lays its
+    sampling points on it (`above_ground_to_bev`, fed by the loader's batch). Per 5 m of y along the ego's
+    road (|x| < 6 m), the LiDAR's road returns lie within 0.2 m of the plane from y = -30 to 30 m (measured:
+    0.016-0.062 m; the flat z = ground_z of before was 0.72 m off at y -30..-25, 0.65 m at 25..30), and the
+    tiny preset's sampling points there (height 0) project within 4 px (paper preset's 1/2 images; median
+    per camera 0.7-2.1 px, at most 3.1) of the road under them: the plane moved by its band's measured
+    offset. On the flat z = ground_z they were 11-19 px off (median per camera)."""
+    from baselines.data import collate
+    from baselines.encoder import CameraEncoder, above_ground_to_bev
+
+    frame, sample, _ = load_frame(real_nuscenes_prepared, "mini_train", "paper")
+    raw = raw_pcd(real_nuscenes_keyframe, frame)[:, :3].astype(np.float64)
+    (a, b), ground_z = frame["ground_slope"], frame["ground_z"]
+    plane = ground_z + a * raw[:, 0] + b * raw[:, 1]
+    sensors = collate([sample]).sensors
+    encoder = CameraEncoder(resolve_config("tiny", modality="camera").encoder)
+    assert encoder.config.camera_heights == (0.0,)
+    pillars = encoder.pillar_points  # (Q, 3): x, y, height above the ground
+    on_plane = above_ground_to_bev(pillars, sensors.ground(), sensors.slope())[0].numpy().astype(np.float64)
+    flat = above_ground_to_bev(pillars, sensors.ground())[0].numpy().astype(np.float64)  # before: level
+    bands, cells, road = [], [], []
     for y in np.arange(-30.0, 30.0, 5.0):
-        patch = (np.abs(raw[:, 0]) < 6) & (raw[:, 1] >= y) & (raw[:, 1] < y + 5) & (raw[:, 2] < 0)
-        if patch.sum() < 50 or -5 <= y < 0:  # too few returns; the ego car itself
+        band = (np.abs(raw[:, 0]) < 6) & (raw[:, 1] >= y) & (raw[:, 1] < y + 5) & (raw[:, 2] < 0)
+        if band.sum() < 50 or -5 <= y < 0:  # too few returns; the ego car itself
             continue
-        road = road_height(raw[patch, 2])
-        plane = -(calib["translation"][2] + up[1] * (y + 2.5)) / up[2]  # z_ego = 0 at x = 0
-        off_plane.append(road - plane)
-        off_flat.append(road - frame["ground_z"])
-    print("road - ego plane", np.round(off_plane, 3), "road - ground_z", np.round(off_flat, 3))
-    assert len(off_plane) >= 8
-    assert np.abs(off_plane).max() < 0.2, off_plane
-    assert np.abs(off_flat).max() > 0.5, off_flat
+        off_plane = road_height(raw[band, 2] - plane[band])  # the road's height above the plane
+        bands.append((y, off_plane, road_height(raw[band, 2]) - ground_z))
+        xy = pillars[:, :2].numpy()
+        inside = np.flatnonzero((np.abs(xy[:, 0]) < 6) & (xy[:, 1] >= y) & (xy[:, 1] < y + 5))
+        cells.append(inside)
+        road.append(np.column_stack([xy[inside], on_plane[inside, 2] + off_plane]))
+    bands, cells, road = np.array(bands), np.concatenate(cells), np.concatenate(road)
+    print("y, road - plane, road - ground_z", np.round(bands, 3).tolist())
+    assert bands[0, 0] == -30.0 and bands[-1, 0] == 25.0 and len(bands) >= 8
+    assert np.abs(bands[:, 1]).max() < 0.2, bands
+    assert np.abs(bands[[0, -1], 2]).min() > 0.5, bands  # the flat z = ground_z is far off at both ends
+    at_road, seen = our_pixels(sample, road)
+    offsets = {}  # camera: {"plane" / "flat": (median, max) px from the road}
+    for name, points in (("plane", on_plane[cells]), ("flat", flat[cells])):
+        pixels, visible = our_pixels(sample, points)
+        for c, camera in enumerate(frame["cameras"]):
+            both = visible[c] & seen[c]
+            if both.sum() >= 5:
+                offset = np.linalg.norm(pixels[c][both] - at_road[c][both], axis=1)
+                offsets.setdefault(camera["name"], {})[name] = (np.median(offset), offset.max())
+    print("sampling points to the road (median, max px)", offsets)
+    assert {"CAM_FRONT", "CAM_BACK"} <= set(offsets), offsets.keys()
+    for name, offset in offsets.items():
+        assert offset["plane"][0] < 2.5 and offset["plane"][1] < 4.0, (name, offset)
+        assert offset["flat"][0] > 5.0, (name, offset)
 
 
 # AV2 -----------------------------------------------------------------------------------------------------
@@ -325,7 +378,7 @@ def test_av2_lidar_is_the_api_egovehicle_sweep_turned(av2_loaded, real_av2_sweep
 
     frame, sample, config = av2_loaded
     expected = av2_sweep_bev(real_av2_sweep_root, frame)
-    keep = in_loader_box(expected, frame["ground_z"], config)
+    keep = in_loader_box(expected, frame, config)
     assert 10_000 < keep.sum() < config.data.max_points  # measured: 52,394 of the 100,660 returns
     assert len(sample.points) == keep.sum()
     error = np.abs(sample.points[:, :3] - expected[keep]).max()
@@ -342,20 +395,21 @@ def test_av2_projection_matches_project_ego_to_img(av2_loaded, real_av2_sweep_ro
     frame, sample, config = av2_loaded
     log = av2_log_dir(real_av2_sweep_root, frame)
     ego = read_lidar_sweep(real_av2_sweep_root / frame["lidar_path"], attrib_spec="xyz")
-    keep = in_loader_box(av2_sweep_bev(real_av2_sweep_root, frame), frame["ground_z"], config)
+    keep = in_loader_box(av2_sweep_bev(real_av2_sweep_root, frame), frame, config)
     ours, visible = our_pixels(sample, sample.points)
     errors = {}
     for c, camera in enumerate(frame["cameras"]):
         api = PinholeCamera.from_feather(log, camera["name"])
         uv, points_cam, valid = api.project_ego_to_img(ego[keep])
         height, width = sample.image_sizes[c]
-        sx, sy = width / camera["width"], height / camera["height"]
+        scale = config.data.image_settings("av2", synthetic=False)[0]
+        sx, sy = resized_scale(camera["width"], width, scale), resized_scale(camera["height"], height, scale)
         assert (visible[c] | ~valid).all()
         error = np.linalg.norm(ours[c][valid] - to_resized(uv[valid], sx, sy), axis=1)
         errors[camera["name"]] = (int(valid.sum()), error.max())
     print(config.preset, errors)
     for name, (points, error) in errors.items():
-        assert points > 300 and error < 0.5, (name, points, error)
+        assert points > 300 and error < 0.01, (name, points, error)
 
 
 def test_av2_ground_z_is_on_the_sweep_ground(real_av2_sweep_prepared, real_av2_sweep_root):
@@ -363,6 +417,7 @@ def test_av2_ground_z_is_on_the_sweep_ground(real_av2_sweep_prepared, real_av2_s
     ground = ground_returns_height(av2_sweep_bev(real_av2_sweep_root, frame))
     print("av2 ground_z", frame["ground_z"], "lidar ground", ground)
     assert abs(frame["ground_z"] - ground) < 0.2, (frame["ground_z"], ground)
+    assert frame["ground_slope"] == [0.0, 0.0]  # the egovehicle frame turned about z: level
 
 
 # The images where their intrinsics say ----------------------------------------------------------------------
@@ -387,11 +442,14 @@ def content_shift(image: np.ndarray, reference: np.ndarray, rows: tuple[int, int
 def test_nuscenes_loader_images_sit_where_their_intrinsics_say(nuscenes_loaded, real_nuscenes_keyframe):
     """The comparisons above map full-size pixels into the resized image as the intrinsics do
     ((u + 0.5) * s - 0.5, pipeline/camera.py); here the loader's resized image content is compared with
-    the full photograph resampled by that same mapping (an area resize): in three bands of rows, top to
-    bottom, the content is within 0.5 px of it. Measured (pixels of the resized image): paper and gpu
-    (1/2) under 0.005 px; tiny (1/8) 0.08 px at the top to 0.45 px at the bottom, vertically (a finding,
-    not fixed here: `read_image` decodes the JPEG at 1/8 to 113 rows, 900 / 8 rounded up, resizes them to
-    112 and returns the scale 112 / 900, where the image's rows are 112 / 113 / 8 of the photograph's)."""
+    the full photograph resampled by that same mapping, with the scale s of the loader's own intrinsics (an
+    area resize of the photograph over 1 / s of its pixels, its bottom and right edges repeated beyond it, as
+    a JPEG encoder pads its last blocks): in three bands of rows, top to bottom, the content is within
+    0.1 px of it. Measured (pixels of the resized image): paper and gpu (1/2) under 0.005 px; tiny (1/8)
+    0.07 px horizontally (as before the fix: the 1/8 decode is a little off an area resize) and 0.03 px
+    vertically. Before `read_image` returned the scale of the decoded image's own extent (tiny: 112 rows
+    over the 904 of the 113 rows of a 1/8 decode, not 112 / 900), the tiny images sat 0.08 px (top) to
+    0.45 px (bottom) above where their intrinsics said."""
     import cv2
 
     frame, sample, config = nuscenes_loaded
@@ -399,8 +457,14 @@ def test_nuscenes_loader_images_sit_where_their_intrinsics_say(nuscenes_loaded, 
     for c, camera in enumerate(frame["cameras"]):
         height, width = sample.image_sizes[c]
         full = cv2.imread(str(real_nuscenes_keyframe / camera["image_path"]), cv2.IMREAD_GRAYSCALE)
+        k_full = np.array(camera["intrinsics"]).reshape(3, 3)
+        scale = np.diag(sample.intrinsics[c])[:2] / np.diag(k_full)[:2]  # x, y, as the loader scaled them
+        extent = np.round(np.array([width, height]) / scale).astype(int)  # full-size pixels of the image
+        assert (extent >= [camera["width"], camera["height"]]).all() and (extent - [1600, 900] < 8).all()
+        padded = cv2.copyMakeBorder(full, 0, extent[1] - full.shape[0], 0, extent[0] - full.shape[1],
+                                    cv2.BORDER_REPLICATE)  # fmt: skip
         reference = cv2.resize(
-            full.astype(np.float64), (int(width), int(height)), interpolation=cv2.INTER_AREA
+            padded.astype(np.float64), (int(width), int(height)), interpolation=cv2.INTER_AREA
         )
         rgb = sample.images[c, :, :height, :width].transpose(1, 2, 0)
         grey = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY).astype(np.float64)
@@ -408,7 +472,7 @@ def test_nuscenes_loader_images_sit_where_their_intrinsics_say(nuscenes_loaded, 
             shift = content_shift(grey, reference, (int(top * height), int(bottom * height)))
             worst = np.maximum(worst, np.abs(shift))
     print(config.preset, "image content shift (dx, dy) max", worst)
-    assert (worst < 0.5).all(), worst
+    assert (worst < 0.1).all(), worst
 
 
 # The pictures -----------------------------------------------------------------------------------------------
@@ -417,7 +481,7 @@ def test_nuscenes_loader_images_sit_where_their_intrinsics_say(nuscenes_loaded, 
 def nuscenes_picture(root: Path, prepared: Path, out: Path) -> dict:
     """docs/real_nuscenes_cameras.png: the six real images as the paper preset loads them (1/2), with every
     LiDAR return of the sweep more than 1 m in front of a camera, by depth, and the tiny preset's BEV cell
-    centres on the ground (its camera encoder's sampling points, `camera_heights` (0,) above ground_z), all
+    centres on the ground plane (its camera encoder's sampling points, `camera_heights` (0,) above it), all
     projected by the encoder's `project_points`. Returns counts per camera."""
     from baselines.encoder import above_ground_to_bev, bev_cell_centres
     from benchmark.figures import camera_overlays, save_png_palette
@@ -429,7 +493,8 @@ def nuscenes_picture(root: Path, prepared: Path, out: Path) -> dict:
     (height,) = encoder.camera_heights
     centres = bev_cell_centres(encoder).view(-1, 2)
     pillars = torch.cat([centres, torch.full((len(centres), 1), height)], 1)
-    grid_points = above_ground_to_bev(pillars, torch.tensor([frame["ground_z"]]))[0].numpy()
+    slope = torch.tensor([frame["ground_slope"]], dtype=torch.float32)
+    grid_points = above_ground_to_bev(pillars, torch.tensor([frame["ground_z"]]), slope)[0].numpy()
     grid, grid_visible = our_pixels(sample, grid_points)
     names = [c["name"] for c in frame["cameras"]]
     panels, counts = [], {}
@@ -459,7 +524,8 @@ def nuscenes_picture(root: Path, prepared: Path, out: Path) -> dict:
     title = (
         f"nuScenes {frame['frame_id']} (real images, LiDAR and calibration): LiDAR returns by depth;\n"
         f"magenta +: the tiny preset's {encoder.bev_h} x {encoder.bev_w} BEV cell centres on the ground "
-        f"(ground_z {frame['ground_z']:.2f} m in LIDAR_TOP)"
+        f"(the ground plane in LIDAR_TOP: z = {frame['ground_z']:.2f} + {frame['ground_slope'][0]:.4f} x + "
+        f"{frame['ground_slope'][1]:.4f} y m)"
     )
     save_png_palette(camera_overlays(panels, title, panel_inches=4.2), out, dpi=110)
     return counts
@@ -497,7 +563,10 @@ def av2_picture(root: Path, prepared: Path, out: Path) -> dict:
         f"in the BEV frame (x right, y forward) over the log's vector map; ground_z {frame['ground_z']:.2f} m"
     )
     save_png_palette(
-        sweep_over_map(sample.points, frame["ground_z"], edges, paint, graph, Range(), title), out
+        sweep_over_map(
+            sample.points, frame["ground_z"], frame["ground_slope"], edges, paint, graph, Range(), title
+        ),
+        out,
     )
     return {"points": len(sample.points), "edges": len(edges), "paint": len(paint), "vertices": len(graph.x)}
 

@@ -326,6 +326,9 @@ def test_av2_local_maps_cover_the_crop_of_every_frame(av2_logs, world_of):
 
 def test_nuscenes_tables_load_with_official_split_names(nusc, world_of):
     from nuscenes.utils.splits import create_splits_scenes
+    from pyquaternion import Quaternion
+
+    from pipeline.synth.rig import NUSCENES_LIDAR
 
     splits = create_splits_scenes()
     assert MINI_TRAIN == splits["mini_train"] and MINI_VAL == splits["mini_val"]
@@ -338,7 +341,12 @@ def test_nuscenes_tables_load_with_official_split_names(nusc, world_of):
         lidar = nusc.get("sample_data", sample["data"]["LIDAR_TOP"])
         calib = nusc.get("calibrated_sensor", lidar["calibrated_sensor_token"])
         assert calib["translation"] == [0.943, 0.0, 1.84]
-        assert np.allclose(calib["rotation"], [math.cos(math.pi / 4), 0, 0, -math.sin(math.pi / 4)])
+        # turned -90 deg about z and tilted as the real rig: the ego's up axis in LIDAR_TOP coordinates is
+        # the real calibration's (v1.0-mini scene-0061: lidar2ego's last row)
+        assert np.allclose(calib["rotation"], NUSCENES_LIDAR.quaternion)
+        up = Quaternion(calib["rotation"]).rotation_matrix[2]
+        np.testing.assert_allclose(up, [-0.00589965, -0.02422936, 0.99968904], atol=1e-7)
+        assert abs(Quaternion(calib["rotation"]).rotation_matrix[0, 0]) < 1e-12  # its x axis: the ego's right
         assert lidar["is_key_frame"] and sample["anns"]
     # one semantic prior per location, and every ego pose is on its location's drivable area
     assert sorted(len(m["log_tokens"]) for m in nusc.map) == [1, 1, 1, 1]

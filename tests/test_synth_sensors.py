@@ -72,8 +72,11 @@ def test_sweeps_have_the_real_sensors_density_and_columns(sweeps, tmp_path):
     assert 20_000 < len(points) <= 32 * 1085
     ego_xy = np.column_stack([points[:, 1], -points[:, 0]]) + NUSCENES_LIDAR.translation[:2]  # x right
     assert 18_000 < in_crop(ego_xy).sum() < 30_000
-    ex, ey, ez = sweeps["nuscenes"].xyz.T  # LIDAR_TOP: x right, y forward, at (0.943, 0, 1.84)
-    assert np.allclose(points[:, :3], np.column_stack([-ey, ex - 0.943, ez - 1.84]), atol=1e-4)
+    # LIDAR_TOP: at (0.943, 0, 1.84), x right, y forward, tilted as the real rig (rig.NUSCENES_LIDAR)
+    ego = points[:, :3].astype(np.float64) @ NUSCENES_LIDAR.rotation.T + NUSCENES_LIDAR.translation
+    assert np.allclose(ego, sweeps["nuscenes"].xyz, atol=1e-4)
+    ex, ey, ez = sweeps["nuscenes"].xyz.T
+    assert np.abs(points[:, :3] - np.column_stack([-ey, ex - 0.943, ez - 1.84])).max() > 0.5  # not level
 
 
 def test_laser_numbers(sweeps):

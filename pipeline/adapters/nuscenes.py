@@ -135,12 +135,15 @@ def sensor_to_world(nusc, sample_data: dict) -> np.ndarray:
     )
 
 
-def ground_height(calib: dict) -> float:
-    """z, in the LIDAR_TOP frame, of the ground under the sensor: a nuScenes ego pose sits on the
-    ground (ego z = 0), so that is the ego-frame point (x, y, 0) under the calibrated lidar."""
+def ground_plane(calib: dict) -> tuple[float, list[float]]:
+    """The ego's ground plane in the LIDAR_TOP (BEV) frame as z = ground_z + a x + b y: (ground_z, [a, b]).
+    A nuScenes ego pose sits on the ground (ego z = 0), and LIDAR_TOP is mounted tilted on the ego (pitched
+    1.4 deg nose-down on the real rig), so the ground is the plane of the points p with (R p + t)_z = 0
+    (R, t: the calibrated lidar -> ego): up . p = -t_z, where up, R's last row, is the ego's z axis in
+    LIDAR_TOP coordinates. ground_z is its z at the BEV origin, a and b its rises dz/dx and dz/dy."""
     lidar_to_ego = pose_matrix(calib["rotation"], calib["translation"])
-    under = np.array([*lidar_to_ego[:2, 3], 0.0, 1.0])
-    return float((np.linalg.inv(lidar_to_ego) @ under)[2])
+    up, height = lidar_to_ego[2, :3], lidar_to_ego[2, 3]
+    return float(-height / up[2]), [float(-up[0] / up[2]), float(-up[1] / up[2])]
 
 
 def load_log(ref: SceneRef, margin: float) -> Log:
@@ -166,6 +169,7 @@ def load_log(ref: SceneRef, margin: float) -> Log:
                        world_to_lidar @ sensor_to_world(nusc, data), int(data["width"]), int(data["height"]))
             )  # fmt: skip
         t = int(sample["timestamp"]) * 1000
+        ground_z, ground_slope = ground_plane(lidar_calib)
         frames.append(
             Frame(
                 frame_id=f"nuscenes/{scene['name']}/{t}",
@@ -178,7 +182,8 @@ def load_log(ref: SceneRef, margin: float) -> Log:
                 cameras=cameras,
                 lidar_path=lidar["filename"],
                 lidar_to_ego=np.eye(4),
-                ground_z=ground_height(lidar_calib),
+                ground_z=ground_z,
+                ground_slope=ground_slope,
                 sample_token=token,
             )
         )

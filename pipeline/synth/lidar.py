@@ -72,7 +72,7 @@ def lidar_rays(spec: LidarSpec) -> Rays:
     elevation = np.radians(spec.elevations_deg)
     az, el = np.meshgrid(azimuth, elevation, indexing="ij")  # firing order: azimuth, then laser id
     in_sensor = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1)
-    directions = in_sensor.reshape(-1, 3) @ spec.rotation.T
+    directions = in_sensor.reshape(-1, 3) @ spec.laser_rotation.T
     laser = (spec.first_laser + np.broadcast_to(np.arange(len(elevation)), az.shape)).reshape(-1)
     offset = (az.reshape(-1) / (2 * np.pi) * spec.revolution_ns).astype(np.uint32)
     origin = np.array(spec.translation, np.float64)

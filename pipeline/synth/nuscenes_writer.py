@@ -42,7 +42,8 @@ class Channel:
         return ".pcd.bin" if self.modality == "lidar" else ".jpg"
 
 
-# the real rig: LIDAR_TOP turned -90 deg about z, so its axes are x right, y forward
+# the real rig: LIDAR_TOP turned -90 deg about z, so its axes are x right, y forward, and tilted on the ego
+# (rig.NUSCENES_LIDAR_PITCH_DEG and ROLL_DEG)
 LIDAR_TOP = Channel(
     NUSCENES_LIDAR.name, "lidar", list(NUSCENES_LIDAR.translation), NUSCENES_LIDAR.quaternion.tolist()
 )
@@ -85,7 +86,8 @@ def channels(sensors: bool) -> list[Channel]:
 
 
 def write_pcd_bin(path: Path, sweep: Sweep) -> None:
-    """float32 x, y, z, intensity, ring per point, in the LIDAR_TOP frame (x right, y forward)."""
+    """float32 x, y, z, intensity, ring per point, in the LIDAR_TOP frame (x right, y forward; tilted on the
+    ego as its calibration says, so that the flat ground lies on a plane rising 2.4 % forward)."""
     to_sensor = NUSCENES_LIDAR.rotation.T  # rows: the sensor axes in the ego frame
     xyz = (sweep.xyz - np.array(NUSCENES_LIDAR.translation)) @ to_sensor.T
     points = np.column_stack([xyz, sweep.intensity, sweep.laser]).astype(np.float32)

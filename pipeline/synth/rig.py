@@ -29,6 +29,13 @@ def multiply_quaternions(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ])  # fmt: skip
 
 
+def tilt_quaternion(yaw_deg: float, y_deg: float, x_deg: float) -> np.ndarray:
+    """w, x, y, z of Rz(yaw) Ry(y) Rx(x): turned about z, then tilted about the turned axes y and x."""
+    halves = [math.radians(a) / 2 for a in (yaw_deg, y_deg, x_deg)]
+    turns = [np.array([math.cos(h), *(math.sin(h) * np.eye(3)[axis])]) for h, axis in zip(halves, (2, 1, 0))]
+    return multiply_quaternions(multiply_quaternions(turns[0], turns[1]), turns[2])
+
+
 def yaw_matrix(degrees: float) -> np.ndarray:
     c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -115,10 +122,16 @@ class LidarSpec:
     azimuth_steps: int  # firings per revolution
     revolution_ns: int  # one revolution per sweep
     max_range: float  # m
+    # w, x, y, z: the axes that the lasers' elevations and azimuths are in -> ego frame; None: the sensor's
+    laser_quaternion: np.ndarray | None = None
 
     @property
     def rotation(self) -> np.ndarray:
         return quaternion_matrix(self.quaternion)
+
+    @property
+    def laser_rotation(self) -> np.ndarray:
+        return quaternion_matrix(self.quaternion if self.laser_quaternion is None else self.laser_quaternion)
 
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
@@ -145,9 +158,21 @@ def _vlp32c(name: str, translation: tuple, quaternion: np.ndarray, first_laser: 
     )
 
 
-# nuScenes LIDAR_TOP: turned -90 deg about z (its axes are x right, y forward)
-NUSCENES_LIDAR = LidarSpec("LIDAR_TOP", (0.943, 0.0, 1.84), YAW_RIGHT, HDL32E_ELEVATIONS_DEG, 0, 1085,
-                           50_000_000, 70.0)  # fmt: skip
+# nuScenes LIDAR_TOP as the real rig mounts it: turned -90 deg about z (its axes are x right, y forward) and
+# tilted on the ego, as v1.0-mini scene-0061's calibrated_sensor (../shared/data/nuscenes/keyframe_scene-0061/
+# calibration.json, lidar2ego = Rz(-89.8835 deg) Ry(0.338027 deg) Rx(-1.3884 deg): the yaw is kept at -90
+# here; the two tilts below make the ego's up axis in LIDAR_TOP coordinates, lidar2ego's last row, the real
+# one). In LIDAR_TOP's frame, the BEV frame, the ego's ground then rises 2.4 % forward (frames.ground_slope).
+NUSCENES_LIDAR_PITCH_DEG = -1.3884  # about the sensor's x axis (the ego's right): its front 1.39 deg down
+NUSCENES_LIDAR_ROLL_DEG = 0.338027  # about its y axis (forward): its right side 0.34 deg down
+# The lasers keep the level sensor's pattern in the ego frame (the same ray per firing as before the tilt):
+# a frame's random draws follow the number of returns, and the log's one random stream goes on to the next
+# frame's AV2 sensors, which stay byte for byte as they were. The sweep is written in the tilted LIDAR_TOP
+# frame (nuscenes_writer.write_pcd_bin), so that its ground is the tilted plane, as in real sweeps; only the
+# ring numbers then keep the ego frame's elevation order (the project does not read them).
+LIDAR_TOP_TILTED = tilt_quaternion(-90.0, NUSCENES_LIDAR_ROLL_DEG, NUSCENES_LIDAR_PITCH_DEG)
+NUSCENES_LIDAR = LidarSpec("LIDAR_TOP", (0.943, 0.0, 1.84), LIDAR_TOP_TILTED, HDL32E_ELEVATIONS_DEG, 0, 1085,
+                           50_000_000, 70.0, laser_quaternion=YAW_RIGHT)  # fmt: skip
 # AV2: two stacked VLP-32C, the lower one upside down; a sweep merges both, laser numbers 0-31 and 32-63
 AV2_LIDARS = [
     _vlp32c("up_lidar", (0.943, 0.0, 1.84), IDENTITY, 0),

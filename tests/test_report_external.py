@@ -21,6 +21,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from test_report import first_table, number, section
 
 from benchmark import bootstrap
 from benchmark.metrics import MetricParams
@@ -126,30 +127,6 @@ def made(synth_prepared, tmp_path_factory) -> dict:
     report = write_report([runs], out, draws=200)
     text = (out / "report.md").read_text()
     return {"data": data, "runs": runs, "val": val, "metrics": metrics, "report": report, "text": text}
-
-
-def section(text: str, start: str) -> str:
-    """The text from the heading that starts with `start` to the next heading of its level or above."""
-    lines = text.splitlines()
-    at = next(i for i, line in enumerate(lines) if line.startswith(start))
-    level = len(start) - len(start.lstrip("#"))
-    end = next((i for i in range(at + 1, len(lines)) if re.match(rf"#{{1,{level}}} ", lines[i])), len(lines))
-    return "\n".join(lines[at:end])
-
-
-def first_table(text: str) -> tuple[list[str], list[list[str]]]:
-    lines = text.splitlines()
-    start = next(i for i, line in enumerate(lines) if line.startswith("|"))
-    block = []
-    for line in lines[start:]:
-        if not line.startswith("|"):
-            break
-        block.append([cell.strip() for cell in line.strip("|").split("|")])
-    return block[0], block[2:]
-
-
-def number(cell: str) -> float:
-    return float(cell.strip("*").split(" [")[0])
 
 
 def main_rows(made) -> tuple[list[str], dict[str, list[str]]]:

@@ -22,6 +22,7 @@ import torch
 from baselines.config import Config
 from baselines.encoder import SensorBatch
 from pipeline.camera import scaled_intrinsics
+from pipeline.geometry import ground_height
 from pipeline.io import decode_raster, read_table
 from pipeline.synth import MARKER as SYNTH_MARKER
 
@@ -88,8 +89,7 @@ def read_image(path: Path, scale: float, width: int, height: int) -> tuple[np.nd
 def height_above_ground(points: np.ndarray, ground_z: float, ground_slope) -> np.ndarray:
     """(P,) height of float32 BEV points (P, >= 3) above the ground plane z = ground_z + a x + b y
     (frames.ground_z, ground_slope), in float32: on level ground, the points' z minus ground_z bit for bit."""
-    a, b = ground_slope
-    return points[:, 2] - (ground_z + a * points[:, 0] + b * points[:, 1])
+    return points[:, 2] - ground_height(points[:, 0], points[:, 1], ground_z, ground_slope)
 
 
 def read_lidar(path: Path) -> np.ndarray:

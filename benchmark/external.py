@@ -257,12 +257,10 @@ def to_graphs(vectors: Vectors, frame_ids: list[str], fmt: str, dataset: str, rn
               workers: int = 1) -> Converted:  # fmt: skip
     """Each sample's lane graph from its vectors above min_score, in our BEV frame, clipped to rng; the
     graphs built in `workers` processes."""
-    keep = np.flatnonzero(vectors.scores > min_score)
+    kept = vectors.scores > min_score
+    keep = np.flatnonzero(kept)
     sizes = np.diff(vectors.offsets)[keep]
-    take = np.repeat(vectors.offsets[keep], sizes) + (
-        np.arange(sizes.sum()) - np.repeat(np.cumsum(sizes) - sizes, sizes)
-    )
-    xy = vectors.points[take]
+    xy = vectors.points[np.repeat(kept, np.diff(vectors.offsets))]
     if dataset == "av2":  # egovehicle (x forward, y left) -> BEV (x right, y forward)
         xy = np.stack([-xy[:, 1], xy[:, 0]], axis=1)
     xy = np.ascontiguousarray(xy) + 0.0

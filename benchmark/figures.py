@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
 from benchmark.metrics import MetricParams, candidate_pairs, densify, match
-from pipeline.geometry import Range
+from pipeline.geometry import Range, ground_height
 from pipeline.io import write_atomic
 from pipeline.lane_graph import LaneGraph
 from pipeline.pieces import graph_to_pieces
@@ -227,8 +227,8 @@ def front_camera(data: Path, frame: dict) -> dict:
         if not lines:
             return []
         ground = np.concatenate(lines)
-        a, b = frame["ground_slope"]
-        ground = np.column_stack([ground, frame["ground_z"] + a * ground[:, 0] + b * ground[:, 1]])
+        z = ground_height(ground[:, 0], ground[:, 1], frame["ground_z"], frame["ground_slope"])
+        ground = np.column_stack([ground, z])
         uv, visible = project_points(
             torch.tensor(ground, dtype=torch.float32), intrinsics, sensor_to_ego, sizes
         )
@@ -366,8 +366,7 @@ def sweep_over_map(
     (`paint`: (polyline, colour)) and the lane graph."""
     figure = Figure(figsize=(PANEL_INCHES * 2.7, PANEL_INCHES * 2.3), layout="constrained")
     axes = figure.subplots(1, 2)
-    a, b = ground_slope
-    height = points[:, 2] - (ground_z + a * points[:, 0] + b * points[:, 1])
+    height = points[:, 2] - ground_height(points[:, 0], points[:, 1], ground_z, ground_slope)
     inside = (
         (points[:, 0] >= crop.x_min) & (points[:, 0] <= crop.x_max)
         & (points[:, 1] >= crop.y_min) & (points[:, 1] <= crop.y_max)

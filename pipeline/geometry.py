@@ -45,6 +45,13 @@ class Range:
         return float(np.hypot(max(-self.x_min, self.x_max), max(-self.y_min, self.y_max)))
 
 
+def ground_height(x, y, ground_z: float, ground_slope) -> np.ndarray:
+    """z of the ground under BEV points (x, y): the plane z = ground_z + a x + b y of a frame's
+    frames.ground_z and ground_slope (a, b); in the points' float dtype, ground_z itself on level ground."""
+    a, b = ground_slope
+    return ground_z + a * x + b * y
+
+
 def pose_matrix(rotation_wxyz, translation) -> np.ndarray:
     """4x4 rigid transform from a (w, x, y, z) quaternion and a translation."""
     w, x, y, z = rotation_wxyz

@@ -4,6 +4,10 @@ long its schedule will take (`make gpu-check` must fit 10 minutes on one GPU).
 Synthesises and prepares a small dataset (in child processes, as `cli` would: rendering threads in this
 process slow its training steps), then per model: the first epoch (it fills the sample cache), the
 median of the timed steps after it, samples/s, peak GPU memory and the network's time on one frame.
+Measured under the settings that `cli train` and `cli eval` use (baselines.train.setup: bf16 autocast,
+and on CUDA cuDNN benchmark and TF32 by baselines.device.cuda_settings); each row records them. A
+failing `cli synth` or `cli prepare` prints the tail of its output and ends the run (exit 1), so that
+gpu_setup.sh's log says why.
 
     python -m baselines.bench_step [--preset gpu] [--models lanegap,hdmapnet,maptr,stsu] [--steps 10]
         [--out bench_step]
@@ -39,7 +43,8 @@ console = Console()
 
 
 def prepared_data(folder: Path) -> Path:
-    """The small dataset under folder, written by `cli synth` and `cli prepare`; reused when present."""
+    """The small dataset under folder, written by `cli synth` and `cli prepare`; reused when present. A
+    command that fails prints the last lines of its output and ends the run."""
     prepared = folder / "prepared"
     if not (prepared / "manifest.json").is_file():
         for args in (
@@ -47,8 +52,19 @@ def prepared_data(folder: Path) -> Path:
             ["prepare", "--dataset", "av2", "--root", str(folder / "raw" / "av2" / "sensor"), "--out",
              str(prepared)],
         ):  # fmt: skip
-            subprocess.run([sys.executable, "-m", "cli", *args], check=True, cwd=ROOT, capture_output=True)
+            # captured: their progress bars would fill the log; shown when they fail
+            command = [sys.executable, "-m", "cli", *args]
+            done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
+            if done.returncode:
+                raise SystemExit(failure_message(args, done))
     return prepared
+
+
+def failure_message(args: list[str], done: subprocess.CompletedProcess, lines: int = 30) -> str:
+    """What a failed `cli` command printed: the last `lines` of its stderr (of its stdout when stderr is
+    empty), under one line naming the command and its exit status."""
+    tail = (done.stderr or done.stdout or "").rstrip().splitlines()[-lines:]
+    return "\n".join([f"bench_step: cli {' '.join(args)} failed (exit {done.returncode}):", *tail])
 
 
 def time_model(preset: str, model: str, data: Path, steps: int) -> dict:
@@ -107,6 +123,10 @@ def time_model(preset: str, model: str, data: Path, steps: int) -> dict:
         "s_per_1000_steps": 1000 * step,
         "peak_gpu_gib": torch.cuda.max_memory_allocated(device) / 2**30 if cuda else float("nan"),
         "inference_ms": 1000 * statistics.median(inference[2:]),
+        # the settings the times were taken under, as read here (cli train and cli eval set the same)
+        "autocast": str(dtype).removeprefix("torch.") if dtype else "none",
+        "cudnn_benchmark": torch.backends.cudnn.benchmark,
+        "tf32": torch.backends.cuda.matmul.allow_tf32 and torch.backends.cudnn.allow_tf32,
     }
 
 
@@ -124,7 +144,13 @@ def main() -> None:
     for model in args.models.split(","):
         rows.append(time_model(args.preset, model, data, args.steps))
         console.print(json.dumps(rows[-1]))
-    table = Table(title=f"{args.preset} preset, {rows[0]['device']}: median of {args.steps} steps each")
+    first = rows[0]
+    settings = (
+        f"{first['autocast']} autocast, cuDNN benchmark {first['cudnn_benchmark']}, TF32 {first['tf32']}"
+    )
+    table = Table(
+        title=f"{args.preset} preset, {first['device']} ({settings}): median of {args.steps} steps each"
+    )
     columns = {"first_epoch_s": "first epoch s", "step_s": "s/step", "samples_per_s": "samples/s",
                "s_per_1000_steps": "s / 1000 steps", "peak_gpu_gib": "GPU GiB",
                "inference_ms": "1 frame ms"}  # fmt: skip

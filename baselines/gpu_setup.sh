@@ -11,22 +11,34 @@
 # 2. The wheelhouse, --no-index --no-deps: the machine's own torch and numpy stand in for the lock's
 #    torch==2.13.0 and nuscenes-devkit's numpy<2, which pip's resolver would refuse. Then every module the
 #    commands import, and the packages whose versions differ from requirements.lock (in the log).
+#    Then `cli --help` and the help of every command the check runs: typer builds them all, so an
+#    incompatible typer fails here, before any GPU time.
 # 3. torch.cuda.is_available() (it must be, unless --smoke), then `python -m baselines.bench_step --preset
-#    gpu` and `python -m baselines.gpu_check --bench bench_step/bench_step.json` (epochs sized by it).
-# 4. The key outputs into $OUT (the device tool's folder there) or gpu_check_out/: gpu_setup.log (all
-#    output), environment.txt, bench_step.json, summary.json, report.md.
+#    gpu` (at most BENCH_LIMIT s) and `python -m baselines.gpu_check --bench bench_step/bench_step.json`
+#    (every model the same epochs, the most that fit; without the bench a short fixed schedule), under
+#    `timeout` so that the whole script ends within LIMIT s of its start.
+# 4. Each result into $OUT (the device tool's folder there, at most 8 files) or gpu_check_out/ as its
+#    stage ends: gpu_setup.log (all output, as it comes), environment.txt, bench_step.json after the
+#    bench; runs.tar.gz (every finished run's metrics.json and run.json) and summary.json so far after each
+#    model (gpu_check --results); report.md and the final summary.json at the end. A timeout keeps what
+#    finished.
 #
 # Options: --smoke   `gpu_check --smoke` (tiny data, one epoch, any device), no bench_step
 #          --system  no venv and no wheelhouse: run with $PYTHON as it is (make gpu-check with .venv)
 # Environment: PYTHON (python3), WHEELHOUSE (wheelhouse), VENV (.venv-gpu), OUT (gpu_check_out),
-#   GPU_CHECK_ARGS (more gpu_check options, e.g. --train-seconds 200 under a time limit), and, for
-#   make gpu-dryrun alone, HIDE: distributions of $PYTHON's site-packages that $VENV must not see (the
-#   lock's packages that the GPU image lacks), so that a CPU machine stands in for that image.
+#   LIMIT (seconds for the whole script: 540, the device call's budget; 1800 with --smoke, whose CPU run in
+#   CI takes ~530 s), BENCH_LIMIT (120), GPU_CHECK_ARGS (more gpu_check options, e.g. --train-seconds 100),
+#   and, for make gpu-dryrun alone, HIDE: distributions of $PYTHON's site-packages that $VENV must not see
+#   (the lock's packages that the GPU image lacks), so that a CPU machine stands in for that image.
+#   GPU_CHECK_STARTED (set here: epoch seconds at the script's start) times the whole for gpu_check.
 set -euo pipefail
 script=$(cd "$(dirname "$0")" && pwd)/$(basename "$0")
 cd "$(dirname "$script")/.."
 out=${OUT:-gpu_check_out}
 if [[ -z ${GPU_SETUP_LOG:-} ]]; then  # run again, everything into the log too
+    # the check's wall time and time limit count from here, set-up included
+    GPU_CHECK_STARTED=$(date +%s.%N)
+    export GPU_CHECK_STARTED
     mkdir -p "$out"
     export GPU_SETUP_LOG="$out/gpu_setup.log"
     bash "$script" "$@" 2>&1 | tee "$GPU_SETUP_LOG"
@@ -44,9 +56,14 @@ for arg in "$@"; do
         *) echo "usage: $0 [--smoke] [--system]" >&2; exit 2 ;;
     esac
 done
+if ((smoke)); then limit=${LIMIT:-1800}; else limit=${LIMIT:-540}; fi
+bench_limit=${BENCH_LIMIT:-120}
+grace=15  # after gpu_check's limit: timeout's kill 5 s later, then this script's last lines
 export PYTHONUNBUFFERED=1
-start=$SECONDS
-step() { echo "== $* ($((SECONDS - start)) s)"; }
+: "${GPU_CHECK_STARTED:=$(date +%s.%N)}"  # set by the first pass above; this file run by hand otherwise
+export GPU_CHECK_STARTED
+elapsed() { echo $(($(date +%s) - ${GPU_CHECK_STARTED%.*})); }
+step() { echo "== $* ($(elapsed) s)"; }
 
 if ((system)); then
     py=$PYTHON
@@ -120,6 +137,12 @@ print("imports: ok")
 print("versions other than requirements.lock's:", ", ".join(differ) or "none")
 print("absent here from the lock (not imported by the code):", " ".join(absent) or "none")
 EOF
+# importing cli builds no command: typer does so for --help, as for a run
+"$py" -m cli --help >/dev/null
+for command in synth prepare train eval report; do
+    "$py" -m cli "$command" --help >/dev/null
+done
+echo "cli --help and its commands' help: ok"
 {
     "$py" -c 'import sys; print("python", sys.version)'
     command -v nvidia-smi >/dev/null && nvidia-smi
@@ -135,27 +158,44 @@ if ((!smoke && !cuda_ok)); then
     exit 1
 fi
 
+# `cmd...` under a time limit of its seconds, at most what is left of LIMIT less the grace: its exit
+# status (124 when the limit stopped it; timeout signals its whole process group, cli's children too)
+limited() {
+    local seconds=$1 left rc=0
+    shift
+    left=$((limit - $(elapsed) - grace))
+    if ((seconds > left)); then seconds=$left; fi
+    if ((seconds <= 0)); then
+        echo "no time left for $* (LIMIT $limit s)" >&2
+        return 124
+    fi
+    timeout --kill-after=5 "$seconds" "$@" || rc=$?
+    if ((rc == 124 || rc == 137)); then
+        echo "stopped at its time limit of $seconds s (LIMIT $limit s from the script's start): $*" >&2
+    fi
+    return "$rc"
+}
+
 rc=0
 if ((smoke)); then
     step "gpu_check --smoke"
-    "$py" -m baselines.gpu_check --smoke --out gpu_smoke || rc=$?
-    results=(gpu_smoke/summary.json gpu_smoke/report/report.md)
+    limited "$limit" "$py" -m baselines.gpu_check --smoke --out gpu_smoke --results "$out" || rc=$?
 else
     step "bench_step --preset gpu"
     bench=()
-    if "$py" -m baselines.bench_step --preset gpu --out bench_step; then
+    bench_rc=0
+    limited "$bench_limit" "$py" -m baselines.bench_step --preset gpu --out bench_step || bench_rc=$?
+    if ((bench_rc == 0)); then
+        cp bench_step/bench_step.json "$out/"
         bench=(--bench bench_step/bench_step.json)
     else
-        rc=$?
-        echo "bench_step failed (exit $rc): gpu_check runs the gpu preset's epochs" >&2
+        rc=$bench_rc
+        echo "bench_step failed (exit $bench_rc, its error above): gpu_check trains its short fixed schedule" >&2
     fi
     step "gpu_check ${bench[*]} ${GPU_CHECK_ARGS:-}"
     # shellcheck disable=SC2086  # GPU_CHECK_ARGS: more options, word by word
-    "$py" -m baselines.gpu_check --out gpu_check "${bench[@]}" ${GPU_CHECK_ARGS:-} || rc=$?
-    results=(bench_step/bench_step.json gpu_check/summary.json gpu_check/report/report.md)
+    limited "$limit" "$py" -m baselines.gpu_check --out gpu_check --results "$out" "${bench[@]}" \
+        ${GPU_CHECK_ARGS:-} || rc=$?
 fi
-for file in "${results[@]}"; do
-    if [[ -f $file ]]; then cp "$file" "$out/"; fi
-done
 step "done, exit $rc: $out/ holds $(cd "$out" && echo *)"
 exit "$rc"

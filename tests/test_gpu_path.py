@@ -1,7 +1,8 @@
 """The CUDA path's settings that the CPU can check: the paper preset's pretrained backbone (refused
 without weights, mmdet's frozen stages), a run that no longer needs its weights file (eval, resume),
-the paper's schedule per dataset, the image settings of real and synthetic data, pinned batches and the
-FPS's precision."""
+the paper's schedule per dataset, the image settings of real and synthetic data, pinned batches, the
+FPS's precision, and `make gpu-check`'s schedule (equal epochs, the fixed one without step times) and its
+archive of finished runs."""
 
 from __future__ import annotations
 
@@ -140,16 +141,55 @@ def test_run_json_says_the_schedule_and_the_accumulation(tmp_path):
     assert Path(tmp_path / "run" / "checkpoint.pt").is_file()
 
 
-def test_the_gpu_check_sizes_each_models_epochs_from_its_step_time(synth_prepared, tmp_path):
-    from baselines.gpu_check import MODELS, sized_epochs
+def test_the_gpu_check_gives_every_model_the_epochs_that_fit_all_four(synth_prepared, tmp_path):
+    from baselines.gpu_check import MODELS, equal_epochs
 
     # the synthetic av2 train split: its frames at the gpu preset's batch of 8 make its steps per epoch
     frames = len(PreparedDataset(synth_prepared["av2"], "train", resolve_config("gpu", modality="lidar")))
     steps = frames // 8
-    step_s = {"lanegap": 0.1, "hdmapnet": 0.05, "maptr": 10.0, "stsu": 1e-4}
+    assert steps >= 1
     bench = tmp_path / "bench_step.json"
-    bench.write_text(json.dumps([{"model": m, "step_s": step_s[m]} for m in MODELS]))
-    epochs = sized_epochs(bench, synth_prepared["av2"], train_seconds=4 * 30.0)
-    assert epochs["lanegap"] == min(16, int(30 // (0.1 * steps)))
-    assert epochs["hdmapnet"] == min(16, int(30 // (0.05 * steps)))
-    assert (epochs["maptr"], epochs["stsu"]) == (1, 16)  # at least one, at most the gpu preset's
+
+    def epochs_for(step_s: dict[str, float], train_seconds: float) -> int:
+        bench.write_text(json.dumps([{"model": m, "step_s": step_s[m]} for m in MODELS]))
+        return equal_epochs(bench, synth_prepared["av2"], train_seconds)
+
+    # one epoch of all four takes steps x 1.0 s: 3.5 of them fit, so 3 for every model, the slowest too
+    step_s = {"lanegap": 0.2, "hdmapnet": 0.4, "maptr": 0.25, "stsu": 0.15}
+    assert epochs_for(step_s, train_seconds=3.5 * steps) == 3
+    assert epochs_for(step_s, train_seconds=0.5 * steps) == 1  # at least one
+    assert epochs_for(step_s, train_seconds=1000.0 * steps) == 16  # at most the gpu preset's
+    bench.write_text(json.dumps([{"model": "lanegap", "step_s": 0.1}]))
+    with pytest.raises(SystemExit, match="no step time of hdmapnet, maptr, stsu"):
+        equal_epochs(bench, synth_prepared["av2"], 100.0)
+
+
+def test_without_step_times_the_gpu_check_trains_the_short_fixed_schedule(tmp_path):
+    from baselines.gpu_check import FALLBACK_EPOCHS, schedule
+
+    prepared = tmp_path / "not_read"  # neither the fixed schedule nor --epochs reads the data
+    epochs, why = schedule(None, False, None, prepared, 120.0)
+    assert epochs == FALLBACK_EPOCHS == 2 and "bench_step failed" in why
+    assert schedule(5, False, None, prepared, 120.0) == (5, "--epochs")
+    assert schedule(None, True, None, prepared, 120.0) == (1, "--smoke")
+
+
+def test_the_gpu_check_archives_each_finished_run(tmp_path):
+    import tarfile
+
+    from baselines.gpu_check import export_runs
+
+    runs, results = tmp_path / "runs", tmp_path / "out"
+    results.mkdir()
+    for model, files in (
+        ("lanegap", ("metrics.json", "run.json", "checkpoint.pt")),
+        ("maptr", ("run.json",)),
+    ):
+        (runs / model).mkdir(parents=True)
+        for name in files:
+            (runs / model / name).write_text(f"{model} {name}")
+    archive = export_runs(runs, results)
+    with tarfile.open(archive) as tar:  # maptr is still training: no metrics.json yet
+        assert sorted(tar.getnames()) == ["runs/lanegap/metrics.json", "runs/lanegap/run.json"]
+        assert tar.extractfile("runs/lanegap/run.json").read() == b"lanegap run.json"
+    assert sorted(path.name for path in results.iterdir()) == ["runs.tar.gz"]

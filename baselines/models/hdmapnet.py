@@ -57,7 +57,8 @@ class HDMapNetConfig:
 
 
 def paper_head() -> HDMapNetConfig:
-    """HDMapNet's own widths: 37,291,252 parameters with the paper encoder (camera)."""
+    """HDMapNet's own widths: 37,291,252 parameters with the paper encoder (camera); the gpu preset's too,
+    as the CPU checks needed no other setting of it but the tiny size (docs/EXPERIMENTS.md, 2026-12-06)."""
     return HDMapNetConfig(width=64)
 
 

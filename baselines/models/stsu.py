@@ -41,6 +41,13 @@ def paper_head() -> STSUConfig:
     return STSUConfig()
 
 
+def gpu_head() -> STSUConfig:
+    """The paper's head with what the CPU checks' short schedule needed and the 0.3 m BEV does not change
+    (docs/EXPERIMENTS.md, 2026-12-06): score threshold 0.6 and duplicates suppressed within 3 m, the links'
+    positive weight clamped at 10 (not the one-to-many group, which cost STSU 0.11 TOPO F1)."""
+    return STSUConfig(score_threshold=0.6, duplicate_radius=3.0, max_link_pos_weight=10.0)
+
+
 def tiny_head() -> STSUConfig:
     """1,430,842 parameters with the tiny encoder (camera); LaneGAP's tiny layers and widths, its fine BEV
     level (0.6 m cells, without which it barely learns in the CPU budget) and lane head, and MapTR's
@@ -62,7 +69,7 @@ def tiny_head() -> STSUConfig:
 
 def head(preset: str) -> STSUConfig:
     """STSU's head config of a preset (`baselines.models.HEADS`)."""
-    return preset_head("STSU", {"paper": paper_head, "tiny": tiny_head, "gpu": paper_head}, preset)
+    return preset_head("STSU", {"paper": paper_head, "tiny": tiny_head, "gpu": gpu_head}, preset)
 
 
 def arc_length_parameters(points: torch.Tensor) -> torch.Tensor:

@@ -9,6 +9,7 @@ Figures are plain `matplotlib.figure.Figure`s (no pyplot state) saved as PNG by 
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -140,6 +141,52 @@ def loss_curves(curves: dict[str, tuple[np.ndarray, np.ndarray]]) -> Figure:
     ax.set_ylabel("training loss")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6)
+    return figure
+
+
+@dataclass
+class ValidationCurve:
+    """One run's validation during training, in %, as `validation_curves` draws it."""
+
+    name: str
+    points: dict[str, tuple[np.ndarray, np.ndarray]]  # panel key -> (steps, values)
+    constants: dict[str, float]  # panel key -> the run's best constant in hindsight, where known
+    best: tuple[str, int, float] | None = None  # (panel key, step, value) of the checkpoint kept as best
+
+
+@styled
+def validation_curves(panels: list[tuple[str, str]], curves: list[ValidationCurve]) -> Figure:
+    """Validation scores (%) against step, one panel per (key, title), one line per run in the same colour
+    in every panel; its best constant as a dashed line of that colour, its best checkpoint as a star."""
+    figure = Figure(figsize=(0.6 + 2.9 * len(panels), 3.2), layout="constrained")
+    axes = figure.subplots(1, len(panels), squeeze=False)[0]
+    for ax, (key, title) in zip(axes, panels):
+        top = 1.0
+        for index, curve in enumerate(curves):
+            colour = piece_colour(index)
+            if key in curve.points:
+                steps, values = curve.points[key]
+                marker = "." if len(steps) < 20 else None
+                ax.plot(steps, values, marker=marker, color=colour, label=curve.name)
+                top = max(top, float(np.max(values)))
+            if key in curve.constants:
+                ax.axhline(curve.constants[key], color=colour, ls="--", lw=1)
+                top = max(top, curve.constants[key])
+            if curve.best and curve.best[0] == key:
+                ax.plot([curve.best[1]], [curve.best[2]], ls="none", marker="*", ms=10, color=colour,
+                        mec="black", mew=0.5)  # fmt: skip
+        ax.set_ylim(0, min(105.0, top * 1.1))  # room for a star at 100 %
+        ax.set_title(title, fontsize=8)
+        ax.set_xlabel("step")
+        ax.set_ylabel("validation (%)")
+        ax.grid(alpha=0.3)
+    if any(curve.constants for curve in curves):
+        axes[0].plot([], [], color="black", ls="--", lw=1, label="best constant (hindsight)")
+    if any(curve.best for curve in curves):
+        axes[0].plot([], [], ls="none", marker="*", ms=8, color="black", label="best.pt")
+    # one legend beside the panels, each label once: a run may have points in one panel only
+    legend = {label: handle for ax in axes for handle, label in zip(*ax.get_legend_handles_labels())}
+    figure.legend(legend.values(), legend.keys(), loc="outside right upper", fontsize=6)
     return figure
 
 

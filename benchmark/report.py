@@ -1,10 +1,10 @@
 """`cli report`: the comparison tables and pictures of finished runs, as DIR/report.md and its PNGs.
 
-Reads what `cli eval` (RUN/metrics.json, predictions.parquet, config.json, run.json, log.jsonl) and
-`cli roundtrip` (JSON) wrote, and never recomputes a score, with one exception that says so: the
-scores by junction count, which score each run's predictions.parquet on subsets of its frames with
-the project's own metric. Runs are grouped in blocks, one per prepared dataset and split (read from
-the data's manifest.json): runs scored on different frames never share a table.
+Reads what `cli train` and `cli eval` (RUN/metrics.json, predictions.parquet, config.json, run.json,
+log.jsonl, val.jsonl) and `cli roundtrip` (JSON) wrote, and never recomputes a score, with one exception
+that says so: the scores by junction count, which score each run's predictions.parquet on subsets of its
+frames with the project's own metric. Runs are grouped in blocks, one per prepared dataset and split
+(read from the data's manifest.json): runs scored on different frames never share a table.
 
 Each F1 has a 95 % interval from a bootstrap over the block's frames (benchmark/bootstrap.py), drawn from
 the per-frame counts `cli eval` keeps (RUN/frame_counts.parquet); the summary calls a run's lead a lead
@@ -97,6 +97,19 @@ EXTERNAL_NOTE = (
     "and bolded with the runs, but its size, speed, sensors and sensor-blind floor are unknown (the note "
     "under its table says what was read)."
 )
+VALIDATION_FILE = "val.jsonl"
+# val.jsonl's keys drawn, one panel each, with the best constant's F1 (metrics.json floor) of each
+VALIDATION_PANELS = (("directed_topo_f1", "directed", "topo"),
+                     ("directed_junction_topo_f1", "directed", "junction_topo"))  # fmt: skip
+VALIDATION_NAMES = {"directed_topo_f1": "directed TOPO F1",
+                    "directed_junction_topo_f1": "directed Junction TOPO F1",
+                    "undirected_topo_f1": "undirected TOPO F1",
+                    "undirected_junction_topo_f1": "undirected Junction TOPO F1", "miou": "mIoU"}  # fmt: skip
+VALIDATION_NOTE = (
+    "From each run's val.jsonl (`cli train --eval-every`: one point per validation, on the frames its line "
+    "names, a fixed subset with `--eval-frames`). Dashed: the run's best constant in hindsight from its "
+    "metrics.json, scored on `cli eval`'s frames. Star: the checkpoint kept as best.pt (`best` in run.json)."
+)
 GRID_NOTE = "Each piece in its own colour, arrows in the driving direction, the ego car in grey."
 
 
@@ -117,6 +130,8 @@ class Run:
     no_counts: str = ""  # why a scored run has no per-frame counts (so no intervals)
     intervals: dict | None = None  # {mode: {metric: [low, high]}} of each F1, drawn for its block
     info: dict = field(default_factory=dict)  # run.json: processes, accumulation, schedule
+    validation: list[dict] | None = None  # val.jsonl's records (validation during training); None: no file
+    cut: list[str] = field(default_factory=list)  # the files whose cut-short last line was left out
 
     @property
     def scored(self) -> bool:
@@ -220,6 +235,22 @@ def read_json(path: Path) -> dict:
         raise ValueError(f"{path}: not valid JSON ({error})") from error
 
 
+def read_jsonl(path: Path) -> tuple[list[dict], bool]:
+    """The records of a JSON-lines file that training appends to (log.jsonl, val.jsonl), and whether its
+    last line was cut short: a kill mid-write leaves a line without its newline, left out unparsed. NaN
+    and Infinity (Python's json writes a non-finite loss so) read back as floats."""
+    *complete, tail = Path(path).read_text(errors="replace").split("\n")
+    records = []
+    for number, line in enumerate(complete, 1):
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as error:
+            raise ValueError(f"{shown(path)}, line {number}: not valid JSON ({error})") from error
+    return records, bool(tail.strip())
+
+
 def find_runs(paths: list[Path]) -> list[Path]:
     """Run folders: each path is a run folder (it holds config.json, metrics.json, ...) or a folder whose
     every sub-folder is taken as a run (an empty one then appears as a run without scores)."""
@@ -301,13 +332,18 @@ def load_run(path: Path, name: str) -> Run:
     config = config or (metrics or {}).get("config")
     data, dataset = find_data([(metrics or {}).get("data"), info.get("data")])
     split = (metrics or {}).get("split") or (config or {}).get("train", {}).get("val_split")
-    log = []
+    log, cut = [], []
     if (path / "log.jsonl").is_file():
-        log = [json.loads(line) for line in (path / "log.jsonl").read_text().splitlines() if line.strip()]
+        log, cut_short = read_jsonl(path / "log.jsonl")
+        cut += ["log.jsonl"] if cut_short else []
+    validation = None
+    if (path / VALIDATION_FILE).is_file():
+        validation, cut_short = read_jsonl(path / VALIDATION_FILE)
+        cut += [VALIDATION_FILE] if cut_short else []
     if metrics is None and not reasons:
         reasons.append("no metrics.json")
     run = Run(path, name, metrics, config, data, dataset, split, info.get("world_size"), log, reasons)
-    run.info = info
+    run.info, run.validation, run.cut = info, validation, cut
     if metrics is not None:
         load_counts(run)
     return run
@@ -1115,20 +1151,105 @@ def unplaced_section(doc: Sections) -> list[str]:
     return ["## The paper's tables not shown", "", note, "", *unplaced, ""]
 
 
+def finite(value) -> bool:
+    """A number that a curve can hold: not None, NaN or infinite."""
+    return isinstance(value, int | float) and math.isfinite(value)
+
+
+def loss_points(run: Run) -> tuple[np.ndarray, np.ndarray, int]:
+    """(steps, losses) of a run's logged steps, and how many were left out: a step the non-finite guard
+    skipped ("skipped") or any non-finite loss would cut the curve and spoil its scale."""
+    logged = [e for e in run.log if "step" in e and e.get("loss") is not None]
+    kept = [e for e in logged if "skipped" not in e and finite(e["loss"])]
+    steps = np.array([e["step"] for e in kept], np.int64)
+    return steps, np.array([e["loss"] for e in kept], np.float64), len(logged) - len(kept)
+
+
 def loss_section(blocks: list[Block], doc: Sections) -> list[str]:
     """Every run's training loss by step, from its log.jsonl."""
-    curves = {}
+    curves, left_out = {}, {}
     for block in blocks:
         for run in block.runs:
-            points = [(e["step"], e["loss"]) for e in run.log if "step" in e and e.get("loss") is not None]
-            if points:
-                curves[run.name] = (np.array([p[0] for p in points]), np.array([p[1] for p in points]))
+            steps, losses, skipped = loss_points(run)
+            if len(steps):
+                curves[run.name] = (steps, losses)
+            if skipped:
+                left_out[run.name] = skipped
     md = ["## Training loss", ""]
     if not curves:
         return md + ["No run has a log.jsonl with losses.", ""]
     doc.picture(figures.loss_curves(curves), "loss.png")
-    return md + ["![training loss](loss.png)", "", "From each run's log.jsonl (one point per logged step).",
-                 ""]  # fmt: skip
+    md += ["![training loss](loss.png)", "", "From each run's log.jsonl (one point per logged step).", ""]
+    if left_out:
+        runs = ", ".join(f"{name} {count}" for name, count in left_out.items())
+        md += [f"Left out: logged steps skipped by the non-finite guard or with a non-finite loss ({runs}).",
+               ""]  # fmt: skip
+    cut = [run.name for block in blocks for run in block.runs if "log.jsonl" in run.cut]
+    if cut:
+        md += [f"The last line of log.jsonl was cut short (a kill mid-write), left out: {', '.join(cut)}.",
+               ""]  # fmt: skip
+    return md
+
+
+def validation_curve(run: Run) -> figures.ValidationCurve:
+    """A run's val.jsonl as the picture draws it: each panel's key in % by step, the best constant in
+    hindsight of its metrics.json, and its best checkpoint (run.json "best") where it is a panel's."""
+    points, constants = {}, {}
+    for key, mode, metric in VALIDATION_PANELS:
+        kept = [r for r in run.validation or [] if "step" in r and finite(r.get(key))]
+        if kept:
+            points[key] = (np.array([r["step"] for r in kept]), 100 * np.array([r[key] for r in kept]))
+        constant = ((run.metrics or {}).get("floor") or {}).get("best_constant")
+        if constant:
+            constants[key] = 100 * constant[mode][metric]["f1"]
+    best = run.info.get("best")
+    marked = None
+    if best and best.get("metric") in points:
+        marked = (best["metric"], best["step"], 100 * best["value"])
+    return figures.ValidationCurve(run.name, points, constants, marked)
+
+
+def validation_line(run: Run) -> str:
+    """One line per run: what its val.jsonl holds, its best checkpoint and its best constant."""
+    if run.validation is None:
+        why = "an external run, not trained here" if run.external is not None else "no validation recorded"
+        text = f"{run.name}: no {VALIDATION_FILE} ({why})"
+    elif not run.validation:
+        text = f"{run.name}: {VALIDATION_FILE} holds no complete line"
+    else:
+        steps = [r["step"] for r in run.validation if "step" in r]
+        frames = sorted({r["frames"] for r in run.validation if "frames" in r})
+        text = f"{run.name}: {len(run.validation)} validation(s)"
+        if steps:
+            text += f", step {steps[0]}" if min(steps) == max(steps) else f", steps {min(steps)}-{max(steps)}"
+        if frames:
+            text += f", on {frames[0] if len(frames) == 1 else f'{frames[0]}-{frames[-1]}'} frames"
+    if VALIDATION_FILE in run.cut:
+        text += "; its last line was cut short (a kill mid-write) and left out"
+    best = run.info.get("best")
+    if best:
+        name = VALIDATION_NAMES.get(best.get("metric"), best.get("metric"))
+        kept = "kept as best.pt" if (run.path / "best.pt").is_file() else "its best.pt is missing"
+        text += (f"; best {name} {percent(best.get('value'))} % at step {best.get('step', '?')} "
+                 f"(epoch {best.get('epoch', '?')}), {kept}")  # fmt: skip
+    constant = ((run.metrics or {}).get("floor") or {}).get("best_constant")
+    if constant and run.validation:
+        known = [f"{VALIDATION_NAMES[key]} {percent(constant[mode][metric]['f1'])} %"
+                 for key, mode, metric in VALIDATION_PANELS]  # fmt: skip
+        text += f"; best constant (hindsight): {', '.join(known)}"
+    return text + "."
+
+
+def validation_section(blocks: list[Block], doc: Sections) -> list[str]:
+    """Every run's validation F1 during training by step, from its val.jsonl, a line per run."""
+    runs = [run for block in blocks for run in block.runs]
+    curves = [validation_curve(run) for run in runs if run.validation]
+    md = ["## Validation during training", ""]
+    if any(curve.points for curve in curves):
+        panels = [(key, VALIDATION_NAMES[key]) for key, _, _ in VALIDATION_PANELS]
+        doc.picture(figures.validation_curves(panels, curves), "validation.png")
+        md += ["![validation F1 during training](validation.png)", "", VALIDATION_NOTE, ""]
+    return md + [f"- {validation_line(run)}" for run in runs] + [""]
 
 
 def write_report(
@@ -1154,6 +1275,7 @@ def write_report(
     md += roundtrip_section(trip_tables, doc)
     md += unplaced_section(doc)
     md += loss_section(blocks, doc)
+    md += validation_section(blocks, doc)
     text = "\n".join(md).rstrip() + "\n"
     path = out / "report.md"
     write_atomic(path, lambda tmp: tmp.write_text(text))

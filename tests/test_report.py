@@ -12,6 +12,7 @@ scores); `lanegap_nusc`, the first checkpoint scored by `cli eval` on the nuScen
 from __future__ import annotations
 
 import json
+import math
 import re
 import shutil
 from pathlib import Path
@@ -504,3 +505,103 @@ def test_viz_draws_the_frame_of_lowest_f1(made, tmp_path):
         app, ["viz", "--pred", str(pred), "--gt", str(av2), "--frame", "nope", "--out", str(out)]
     )
     assert result.exit_code == 1 and "no frame 'nope' in the ground truth" in result.output
+
+
+VALIDATION_KEYS = ("directed_topo_f1", "directed_junction_topo_f1", "undirected_topo_f1",
+                   "undirected_junction_topo_f1", "miou")  # fmt: skip
+
+
+def validated_copy(made, folder: Path, seed: int) -> list[dict]:
+    """A copy of the trained run with a val.jsonl of seeded scores at its logged steps, run.json's
+    "best" (the highest directed Junction TOPO F1) and its best.pt, as `cli train --eval-every` writes
+    them."""
+    shutil.copytree(made["runs"] / "lanegap_lidar", folder)
+    log = [json.loads(line) for line in (folder / "log.jsonl").read_text().splitlines()]
+    frames = json.loads((folder / "metrics.json").read_text())["frames"]
+    rng = np.random.default_rng(seed)
+    records = [{"step": e["step"], "epoch": e["epoch"], "split": "val", "frames": frames,
+                "seconds": float(rng.uniform(1, 2)), **dict(zip(VALIDATION_KEYS, rng.uniform(0, 1, 5)))}
+               for e in log]  # fmt: skip
+    (folder / "val.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    best = max(records, key=lambda r: r["directed_junction_topo_f1"])
+    info = json.loads((folder / "run.json").read_text())
+    info["best"] = {"metric": "directed_junction_topo_f1", "value": best["directed_junction_topo_f1"],
+                    "epoch": best["epoch"], "step": best["step"]}  # fmt: skip
+    (folder / "run.json").write_text(json.dumps(info))
+    shutil.copy(folder / "checkpoint.pt", folder / "best.pt")
+    return records
+
+
+def test_validation_curves_with_the_best_and_a_cut_last_line(made, tmp_path):
+    from benchmark.report import load_run, validation_curve
+
+    runs = tmp_path / "runs"
+    records = validated_copy(made, runs / "validated", seed=0)
+    cut = validated_copy(made, runs / "cut", seed=1)[:-1]  # its last line is cut below
+    # a kill mid-write: val.jsonl and log.jsonl end in the first half of their last line, no newline
+    for name in ("val.jsonl", "log.jsonl"):
+        text = (runs / "cut" / name).read_text().rstrip("\n")
+        last = text.rsplit("\n", 1)[-1]
+        (runs / "cut" / name).write_text(text[: len(text) - len(last) // 2])
+    # a run trained before validation during training: no val.jsonl, best.pt or run.json "best"
+    old = runs / "unvalidated"
+    shutil.copytree(made["runs"] / "lanegap_lidar", old)
+    for name in ("val.jsonl", "best.pt"):
+        (old / name).unlink(missing_ok=True)
+    info = json.loads((old / "run.json").read_text())
+    (old / "run.json").write_text(json.dumps({k: v for k, v in info.items() if k != "best"}))
+
+    drawn = validation_curve(load_run(runs / "cut", "cut"))
+    for key in ("directed_topo_f1", "directed_junction_topo_f1"):
+        steps, values = drawn.points[key]
+        assert steps.tolist() == [r["step"] for r in cut] and values.tolist() == [100 * r[key] for r in cut]
+    info = json.loads((runs / "cut" / "run.json").read_text())["best"]
+    assert drawn.best == (info["metric"], info["step"], 100 * info["value"])
+
+    report = write_report([runs], tmp_path / "r", draws=0)
+    assert "validation.png" in [p.name for p in report.pictures]
+    image = np.asarray(Image.open(tmp_path / "r" / "validation.png").convert("L"), np.float64)
+    assert image.shape[0] > 100 and image.shape[1] > 100 and image.std() > 10
+    text = section(report.path.read_text(), "## Validation during training")
+    assert "![validation F1 during training](validation.png)" in text
+    metrics = json.loads((runs / "validated" / "metrics.json").read_text())
+    floor = metrics["floor"]["best_constant"]["directed"]
+    constant = (f"best constant (hindsight): directed TOPO F1 {100 * floor['topo']['f1']:.1f} %, directed "
+                f"Junction TOPO F1 {100 * floor['junction_topo']['f1']:.1f} %.")  # fmt: skip
+    for name, held in (("validated", records), ("cut", cut)):
+        best = json.loads((runs / name / "run.json").read_text())["best"]  # over every line, the cut one too
+        steps = [r["step"] for r in held]
+        line = f"- {name}: {len(held)} validation(s), steps {min(steps)}-{max(steps)}"
+        line += f", on {metrics['frames']} frames"
+        line += "; its last line was cut short (a kill mid-write) and left out" if name == "cut" else ""
+        line += (f"; best directed Junction TOPO F1 {100 * best['value']:.1f} % at step {best['step']} "
+                 f"(epoch {best['epoch']}), kept as best.pt; " + constant)  # fmt: skip
+        assert line in text.splitlines(), (name, text)
+    assert "- unvalidated: no val.jsonl (no validation recorded)." in text.splitlines()
+    loss = section(report.path.read_text(), "## Training loss")
+    assert "The last line of log.jsonl was cut short (a kill mid-write), left out: cut." in loss
+
+
+def test_a_skipped_non_finite_step_is_left_out_of_the_loss_curve(made, tmp_path):
+    from benchmark.report import load_run, loss_points
+
+    run = tmp_path / "runs" / "guarded"
+    shutil.copytree(made["runs"] / "lanegap_lidar", run)
+    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    last = log[-1]
+    # the guard's lines (json writes NaN and Infinity), and a logged step whose loss is infinite
+    guard = {"epoch": last["epoch"], "skipped": "non-finite"}
+    skipped = [{**guard, "step": last["step"] + 1, "loss": math.nan},
+               {**guard, "step": last["step"] + 2, "loss": 2 * last["loss"]},
+               {**last, "step": last["step"] + 3, "loss": math.inf}]  # fmt: skip
+    with (run / "log.jsonl").open("a") as file:
+        file.writelines(json.dumps(entry) + "\n" for entry in skipped)
+    steps, losses, left_out = loss_points(load_run(run, "guarded"))
+    assert steps.tolist() == [e["step"] for e in log] and losses.tolist() == [e["loss"] for e in log]
+    assert left_out == len(skipped)
+    report = write_report([tmp_path / "runs"], tmp_path / "r", draws=0)
+    assert "loss.png" in [p.name for p in report.pictures]
+    image = np.asarray(Image.open(tmp_path / "r" / "loss.png").convert("L"), np.float64)
+    assert image.std() > 10
+    text = section(report.path.read_text(), "## Training loss")
+    assert f"non-finite loss (guarded {len(skipped)})." in text

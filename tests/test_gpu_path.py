@@ -193,3 +193,17 @@ def test_the_gpu_check_archives_each_finished_run(tmp_path):
         assert sorted(tar.getnames()) == ["runs/lanegap/metrics.json", "runs/lanegap/run.json"]
         assert tar.extractfile("runs/lanegap/run.json").read() == b"lanegap run.json"
     assert sorted(path.name for path in results.iterdir()) == ["runs.tar.gz"]
+
+
+def test_a_failed_bench_step_command_shows_the_tail_of_its_output():
+    import subprocess
+
+    from baselines.bench_step import failure_message
+
+    stderr = "".join(f"line {i}\n" for i in range(40)) + "ValueError: no frames\n"
+    done = subprocess.CompletedProcess(["cli"], 1, stdout="progress\n", stderr=stderr)
+    lines = failure_message(["prepare", "--dataset", "av2"], done).splitlines()
+    assert lines[0] == "bench_step: cli prepare --dataset av2 failed (exit 1):"
+    assert lines[1:] == [*(f"line {i}" for i in range(11, 40)), "ValueError: no frames"]
+    quiet = subprocess.CompletedProcess(["cli"], 2, stdout="only stdout\n", stderr="")
+    assert failure_message(["synth"], quiet).splitlines()[1:] == ["only stdout"]

@@ -31,11 +31,16 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=N
 Model = Literal["lanegap", "hdmapnet", "maptr", "stsu"]
 Preset = Literal["paper", "tiny", "gpu"]
 Modality = Literal["camera", "lidar", "fusion"]
+BestMetric = Literal[
+    "directed_topo_f1", "directed_junction_topo_f1", "undirected_topo_f1", "undirected_junction_topo_f1",
+    "miou",
+]
 PRESET_DEFAULTS = {  # the presets' values of the `cli train` options that default to them
     "epochs": "paper 110 on nuScenes and 24 on AV2, tiny 11, gpu 16",
     "batch_size": "paper 32, tiny 2, gpu 8",
     "modality": "paper camera, tiny fusion, gpu fusion",
     "path_points": "paper 30, tiny 20, gpu 30",
+    "eval_every": "paper 1, tiny 1, gpu 1",
 }
 PATH_POINTS = Literal[10, 20, 30, 40]  # the paper's counts of points per path (Tab. 8)
 JSON_HELP = "Print the result as one JSON line instead of the tables (for scripts)"
@@ -316,6 +321,32 @@ def train(
         show_default="none",
         help="Any config field, e.g. train.lr=3e-4 or encoder.kernel_size=3,5 (repeatable)",
     ),
+    eval_every: int = typer.Option(
+        None,
+        min=0,
+        show_default=PRESET_DEFAULTS["eval_every"],
+        help="Validate every N epochs and after the last one (0: after the last one only): RUN/val.jsonl, "
+        "RUN/best.pt",
+    ),
+    eval_frames: int = typer.Option(
+        None, min=0, show_default="0: the whole split", help="Validate on K frames, drawn once by the seed"
+    ),
+    best_metric: BestMetric = typer.Option(
+        None, show_default="directed_junction_topo_f1", help="The validation score that chooses RUN/best.pt"
+    ),
+    checkpoint_every: int = typer.Option(
+        None,
+        min=0,
+        show_default="0: at epoch ends only",
+        help="Also save the full state every N steps inside an epoch (--resume goes on from there exactly)",
+    ),
+    max_bad_steps: int = typer.Option(
+        None,
+        min=0,
+        show_default="10",
+        help="Stop after N steps in a row whose loss or gradient norm is not finite (each is skipped; 0: "
+        "never stop)",
+    ),
     resume: bool = typer.Option(False, help="Continue the run in --out from its last checkpoint"),
     overwrite: bool = typer.Option(False, help="Start afresh in an --out that holds a run (else refused)"),
     stop_after: int = typer.Option(
@@ -324,32 +355,38 @@ def train(
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Train a baseline on a prepared dataset; DDP when started by torchrun (--batch-size is over all
-    processes, and with --json every process prints its line). --resume refuses a dataset prepared with
-    other target parameters, and falls back to checkpoint.prev.pt when checkpoint.pt is damaged.
+    processes, and with --json every process prints its line). Validates during training (RUN/val.jsonl,
+    RUN/best.pt) and writes TensorBoard events to RUN/tb (tensorboard --logdir RUN). A step whose loss or
+    gradient norm is not finite is skipped. --resume refuses a dataset prepared with other target
+    parameters, and falls back to checkpoint.prev.pt when checkpoint.pt is damaged.
 
     \b
     Examples:
-      cli train --model lanegap --data prepared/av2 --out runs/lanegap --preset tiny
+      cli train --model lanegap --data prepared/av2 --out runs/lanegap --preset tiny --checkpoint-every 100
       torchrun --nproc_per_node 8 -m cli train --model maptr --data prep --out runs/maptr --pretrained r50.pth
     """
     from baselines.config import apply_overrides
     from baselines.models import load_config, resolve_config
     from baselines.train import train as run_train
 
+    long_run = {"eval_every": eval_every, "eval_frames": eval_frames, "best_metric": best_metric,
+                "checkpoint_every": checkpoint_every, "max_bad_steps": max_bad_steps}  # fmt: skip
+    long_run = [f"train.{name}={value}" for name, value in long_run.items() if value is not None]
     with reported_errors():
-        if resume:  # the run's own config; only --epochs and --set may change it (e.g. to extend it)
+        if resume:  # the run's own config; --epochs, the options of long runs and --set may change it
             if not (out / "config.json").is_file() or not (out / "run.json").is_file():
                 raise ValueError(f"--out {out}: no run to resume (config.json and run.json of cli train)")
             config = load_config(out / "config.json")
             apply_overrides(config, [f"train.epochs={epochs}"] if epochs else [], "--epochs")
-            apply_overrides(config, set_)
+            apply_overrides(config, long_run + set_)
             data = data or Path(json.loads((out / "run.json").read_text())["data"])
         else:
             weights = str(pretrained) if pretrained else None
             if pretrained is not None and not pretrained.is_file():
                 raise ValueError(f"--pretrained {pretrained}: no such file")
             config = resolve_config(preset, modality, epochs, batch_size, path_points, bezier_points,
-                                    aux_seg, weights, set_, model, accumulate, from_scratch)  # fmt: skip
+                                    aux_seg, weights, long_run + set_, model, accumulate,
+                                    from_scratch)  # fmt: skip
         if data is None:
             raise ValueError("--data is required")
         summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite)
@@ -358,7 +395,8 @@ def train(
     from benchmark.tables import train_table
 
     heading = f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {data}"
-    wrote = [out / name for name in ("config.json", "run.json", "checkpoint.pt", "log.jsonl")]
+    names = ("config.json", "run.json", "checkpoint.pt", "best.pt", "log.jsonl", "val.jsonl", "tb")
+    wrote = [out / name for name in names if (out / name).exists()]
     finish(summary, [(heading, train_table(summary))], wrote, as_json)
 
 
@@ -378,6 +416,9 @@ def eval_(
     bootstrap: int = typer.Option(
         1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
     ),
+    checkpoint: Literal["last", "best"] = typer.Option(
+        "last", help="The weights: last (checkpoint.pt) or best (best.pt, the best validation in training)"
+    ),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Predict a split, turn the outputs into lane graphs (the model's post-processing), write
@@ -386,7 +427,7 @@ def eval_(
 
     \b
     Examples:
-      cli eval --run runs/lanegap --split val
+      cli eval --run runs/lanegap --split val --checkpoint best
       cli eval --run runs/lanegap --data prepared/other --device cpu --no-floor --json
     """
     import torch
@@ -401,7 +442,7 @@ def eval_(
             raise ValueError(f"--run {run}: no such folder")
         if not (run / "config.json").is_file():
             raise ValueError(f"--run {run}: no config.json (expected a run folder written by cli train)")
-        metrics = evaluate(run, data, split, device, floor=floor, bootstrap=bootstrap)
+        metrics = evaluate(run, data, split, device, floor=floor, bootstrap=bootstrap, checkpoint=checkpoint)
     table, notes = eval_table(metrics)
     heading = f"{run} on {metrics['split']} of {metrics['data']}: {metrics['frames']} frames"
     names = ("predictions.parquet", "frame_counts.parquet", "metrics.json")

@@ -23,6 +23,14 @@ import torch
 from baselines.resnet import BackboneName
 
 Modality = Literal["camera", "lidar", "fusion"]
+# A validation's scores (RUN/val.jsonl, baselines/validate.py) that choose best.pt (train.best_metric).
+BestMetric = Literal[
+    "directed_topo_f1",
+    "directed_junction_topo_f1",
+    "undirected_topo_f1",
+    "undirected_junction_topo_f1",
+    "miou",
+]
 
 
 @dataclass
@@ -141,6 +149,13 @@ class TrainConfig:
     threads: int = 0  # torch CPU threads; 0 keeps torch's default
     train_split: str = "train"
     val_split: str = "val"
+    # Validation during training (val.jsonl, best.pt): every eval_every epochs and after the last one (0:
+    # after the last one only), on eval_frames frames of val_split drawn once by the seed (0: all of them).
+    eval_every: int = 1
+    eval_frames: int = 0
+    best_metric: BestMetric = "directed_junction_topo_f1"  # the paper's headline
+    checkpoint_every: int = 0  # optimiser steps between checkpoints inside an epoch (0: at epoch ends only)
+    max_bad_steps: int = 10  # non-finite steps in a row that stop the run (0: never stop)
 
     def micro_batches(self, world_size: int) -> tuple[int, int]:
         """(frames per forward pass, micro-batches per optimiser step) of each of `world_size` processes;

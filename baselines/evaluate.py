@@ -29,11 +29,12 @@ import torch
 from torch.utils.data import DataLoader
 from torch.utils.flop_counter import FlopCounterMode
 
+from baselines.checkpoint import CHOICES, load_checkpoint
 from baselines.config import Config
 from baselines.data import PreparedDataset, collate
+from baselines.device import amp_settings, cuda_settings
 from baselines.floor import blind_floor, floor_margins
 from baselines.models import Built, build, load_config, without_pretrained_weights
-from baselines.train import CHECKPOINT, amp_settings, load_checkpoint
 from benchmark.bootstrap import DRAWS, add_intervals, check_draws
 from benchmark.metrics import MetricParams
 from benchmark.score import default_range, graphs_from_table, read_graph_table, score_frames, write_run
@@ -43,14 +44,19 @@ from pipeline.manifest import check_targets
 from pipeline.progress import tracked
 
 
-def load_model(run_dir: Path, device: torch.device) -> tuple[Built, Config]:
-    """The run's model (in eval mode on `device`) with its post-processing, and the run's config."""
+def load_model(run_dir: Path, device: torch.device, checkpoint: str = "last") -> tuple[Built, Config, dict]:
+    """The run's model (in eval mode on `device`) with its post-processing, the run's config, and where
+    the weights come from (the file, its epoch and step); `checkpoint`: last (checkpoint.pt) or best
+    (best.pt, the best validation during training)."""
     config = load_config(run_dir / "config.json")
     built = build(without_pretrained_weights(config))  # the checkpoint holds every weight
-    path = run_dir / CHECKPOINT
-    checkpoint = load_checkpoint(path)  # weights_only, checksum: a file from elsewhere cannot run code
+    path = run_dir / CHOICES[checkpoint]
+    if checkpoint == "best" and not path.is_file():
+        raise ValueError(f"--checkpoint best: {run_dir} has no {path.name} (it is written by validation "
+                         "during training: cli train --eval-every)")  # fmt: skip
+    checkpoint_ = load_checkpoint(path)  # weights_only, checksum: a file from elsewhere cannot run code
     try:
-        built.model.load_state_dict(checkpoint["model"])
+        built.model.load_state_dict(checkpoint_["model"])
     except RuntimeError as error:  # other weight names or shapes: another model or an older version
         first = str(error).splitlines()[1].strip() if "\n" in str(error) else str(error)
         raise ValueError(
@@ -58,7 +64,9 @@ def load_model(run_dir: Path, device: torch.device) -> tuple[Built, Config]:
         ) from error
 
     built.to(device).model.eval()
-    return built, config
+    source = {"checkpoint": checkpoint, "file": path.name, "epoch": checkpoint_["epoch"],
+              "step": checkpoint_["step"]}  # fmt: skip
+    return built, config, source
 
 
 def count_gflops(model: torch.nn.Module, sensors) -> float:
@@ -91,9 +99,9 @@ class Inference:
 
 
 def predict(built: Built, loader: DataLoader, device: torch.device, autocast_dtype: torch.dtype | None,
-            warmup_frames: int, description: str) -> Inference:  # fmt: skip
+            warmup_frames: int, description: str, count_flops: bool = True) -> Inference:  # fmt: skip
     """Run the model and its post-processing on every frame of `loader` (batches of one), timing the
-    frames after the first `warmup_frames`; the GFLOPs are counted on the first frame."""
+    frames after the first `warmup_frames`; the GFLOPs are counted on the first frame (`count_flops`)."""
 
     def sync() -> None:
         if device.type == "cuda":
@@ -105,7 +113,7 @@ def predict(built: Built, loader: DataLoader, device: torch.device, autocast_dty
     frames = len(loader.dataset)
     for index, batch in enumerate(tracked(loader, description, frames)):
         sensors = batch.sensors.to(device)
-        if index == 0:
+        if index == 0 and count_flops:
             gflops = count_gflops(built.model, sensors)
         sync()
         start = time.perf_counter()
@@ -163,14 +171,17 @@ def evaluate(
     warmup_frames: int = 5,
     floor: bool = True,
     bootstrap: int = DRAWS,
+    checkpoint: str = "last",
 ) -> dict:
     """Predict, post-process to lane graphs, score, and score the blind floor (`floor`,
     baselines/floor.py); returns (and writes) the metrics, with a 95 % interval beside each F1 from
-    `bootstrap` draws over the frames (0: none). The floor's prior search is cached in DATA/floor_cache."""
+    `bootstrap` draws over the frames (0: none), with the weights of `checkpoint` (last or best). The floor's
+    prior search is cached in DATA/floor_cache."""
     check_draws(bootstrap)
     run_dir = Path(run_dir)
     device_ = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    built, config = load_model(run_dir, device_)
+    built, config, source = load_model(run_dir, device_, checkpoint)
+    cuda_settings(device_)  # the frame rates under the training's settings
     if config.train.threads and device_.type == "cpu":
         torch.set_num_threads(config.train.threads)
     run = json.loads((run_dir / "run.json").read_text())
@@ -197,6 +208,7 @@ def evaluate(
         "data": str(data_dir),
         "params": sum(p.numel() for p in built.model.parameters()),  # the thresholds: metric_params
         "model": config.model,
+        "weights": source,  # which checkpoint: its file, epoch and step
         "modeling": built.modeling,
         # torch's FLOP counter (forward pass, batch 1): matmuls and convolutions; the deformable
         # attention's bilinear sampling and the LiDAR scatter are not counted

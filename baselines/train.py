@@ -2,45 +2,64 @@
 
 RUN_DIR gets config.json (the resolved config), run.json (data folder, processes, per-process and
 effective batch size, micro-batches accumulated per step, the schedule and where its epochs came from,
-the dataset's target parameters), log.jsonl (one line per logged step; the losses
-are means over the processes) and checkpoint.pt (every epoch: model, optimiser, scheduler, scaler and
-every rank's RNG state, so that `resume=True` continues exactly where the run stopped). Only rank 0
-writes.
+the dataset's target parameters, the best validation so far), log.jsonl (one line per logged step and
+per skipped step; the losses are means over the processes), val.jsonl (one line per validation: its
+step, epoch, frames, seconds and every F1, baselines/validate.py), tb/ (TensorBoard event files of the
+same), and the checkpoints of baselines/checkpoint.py: checkpoint.pt at every epoch's end and every
+train.checkpoint_every steps (model, optimiser, scheduler, scaler, every rank's RNG state and where the
+epoch's sampler stands, so that `resume=True` continues exactly where the run stopped, inside an epoch
+too), checkpoint.prev.pt (the one before) and best.pt (by train.best_metric). Only rank 0 writes.
 
-Checkpoints are written atomically and carry the sha256 of their content; the one they replace is kept
-as checkpoint.prev.pt. They load with weights_only=True (a crafted file cannot run code), and a damaged
-one is never loaded: resume falls back to checkpoint.prev.pt, saying so in one line.
+A step whose loss or gradient norm is not finite is not applied (no optimiser or scheduler step); it is
+counted and logged, and train.max_bad_steps of them in a row stop the run (TrainingStopped).
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
-import pickle
 import random
 import time
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import pyarrow.compute as pc
 import torch
 import torch.distributed as dist
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
 
+from baselines.checkpoint import (
+    BEST,
+    CHECKPOINT,
+    CheckpointError,
+    CheckpointWriter,
+    resume_checkpoint,
+    rng_state,
+    set_rng_state,
+)
 from baselines.config import PAPER_EPOCHS, Config
 from baselines.data import Batch, PreparedDataset, collate, dataset_range
+from baselines.device import amp_settings, cuda_settings
 from baselines.models import build, check_backbone_weights, without_pretrained_weights
-from pipeline import io
+from baselines.models.base import Built
+from baselines.validate import Validation
+from pipeline import io, progress
 from pipeline.manifest import check_targets, dataset_targets
 
 console = Console(stderr=True)
-CHECKPOINT, PREVIOUS = "checkpoint.pt", "checkpoint.prev.pt"
 
 
 def lr_factor(step: int, total_steps: int, config: Config) -> float:
@@ -67,110 +86,8 @@ def build_optimizer(model: torch.nn.Module, config: Config) -> torch.optim.AdamW
     )
 
 
-def rng_state() -> dict:
-    name, keys, position, has_gauss, cached = np.random.get_state()
-    return {  # plain types and tensors only: checkpoints load with weights_only=True (no pickle)
-        "python": random.getstate(),
-        "numpy": [name, keys.tolist(), position, has_gauss, cached],
-        "torch": torch.get_rng_state(),
-        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
-    }
-
-
-def set_rng_state(state: dict) -> None:
-    random.setstate(state["python"])
-    name, keys, position, has_gauss, cached = state["numpy"]
-    np.random.set_state((name, np.array(keys, np.uint32), position, has_gauss, cached))
-    torch.set_rng_state(state["torch"])
-    if state["cuda"] and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(state["cuda"])
-
-
-def amp_settings(device: torch.device, enabled: bool) -> tuple[torch.dtype | None, bool]:
-    """(autocast dtype or None, whether a GradScaler is needed)."""
-    if device.type != "cuda" or not enabled:
-        return None, False
-    if torch.cuda.is_bf16_supported():
-        return torch.bfloat16, False
-    return torch.float16, True
-
-
-class CheckpointError(ValueError):
-    """A checkpoint that is missing, damaged or refused; the message names the file, in one line."""
-
-
-def content_digest(state: object) -> str:
-    """sha256 of a checkpoint's content: every tensor's dtype, shape and bytes, every plain value."""
-    digest = hashlib.sha256()
-
-    def feed(value: object) -> None:
-        if isinstance(value, torch.Tensor):
-            flat = value.detach().cpu().contiguous().reshape(-1)
-            digest.update(f"tensor {flat.dtype} {tuple(value.shape)};".encode())
-            digest.update(flat.view(torch.uint8).numpy())
-        elif isinstance(value, dict):
-            digest.update(f"dict {len(value)};".encode())
-            for key, item in value.items():
-                feed(key)
-                feed(item)
-        elif isinstance(value, list | tuple):
-            digest.update(f"list {len(value)};".encode())
-            for item in value:
-                feed(item)
-        else:
-            digest.update(f"{type(value).__name__} {value!r};".encode())
-
-    feed(state)
-    return digest.hexdigest()
-
-
-def save_checkpoint(state: dict, path: Path) -> None:
-    """`state` and its sha256 to `path`, atomically; the file it replaces becomes checkpoint.prev.pt."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    torch.save({**state, "sha256": content_digest(state)}, tmp)
-    if path.exists():
-        os.replace(path, path.with_name(PREVIOUS))
-    os.replace(tmp, path)
-
-
-def load_checkpoint(path: Path) -> dict:
-    """The content of a checkpoint written by save_checkpoint, on the CPU, once its sha256 matches.
-    weights_only=True: tensors and plain values only, so that a crafted file cannot run code."""
-    if not path.is_file():
-        raise CheckpointError(f"{path}: no such checkpoint")
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as error:
-        needs = [line.strip() for line in str(error).splitlines() if "GLOBAL" in line]
-        raise CheckpointError(
-            f"{path}: refused: it holds objects other than tensors and plain values, which are never "
-            f"unpickled ({needs[0] if needs else 'not a plain checkpoint'})"
-        ) from error
-    except Exception as error:  # torch raises RuntimeError, EOFError, ... on a damaged file
-        first = str(error).splitlines()[0].split(". ")[0] if str(error) else type(error).__name__
-        raise CheckpointError(f"{path}: unreadable, truncated or not a checkpoint ({first})") from error
-    if not isinstance(checkpoint, dict) or "sha256" not in checkpoint:
-        raise CheckpointError(f"{path}: no checksum: not a checkpoint of this version of cli train")
-    if content_digest({k: v for k, v in checkpoint.items() if k != "sha256"}) != checkpoint["sha256"]:
-        raise CheckpointError(f"{path}: corrupted: its content does not match the sha256 stored in it")
-    return checkpoint
-
-
-def resume_checkpoint(out_dir: Path, master: bool) -> dict:
-    """checkpoint.pt, or checkpoint.prev.pt (said in one line) when checkpoint.pt is missing or damaged;
-    the damaged file is moved to checkpoint.bad.pt, so that the next save does not keep it as previous."""
-    try:
-        return load_checkpoint(out_dir / CHECKPOINT)
-    except CheckpointError as error:
-        if not (out_dir / PREVIOUS).is_file():
-            raise
-        checkpoint = load_checkpoint(out_dir / PREVIOUS)
-        if master:
-            notice = f"{error}; resuming from {PREVIOUS} (epoch {checkpoint['epoch']})"
-            console.print(notice, soft_wrap=True, markup=False, highlight=False)  # one line, as it is
-            if (out_dir / CHECKPOINT).exists():
-                os.replace(out_dir / CHECKPOINT, out_dir / "checkpoint.bad.pt")
-        return checkpoint
+class TrainingStopped(ValueError):
+    """train.max_bad_steps steps in a row were not finite; the message says which, and where to resume."""
 
 
 def setup_process(config: Config) -> tuple[torch.device, int, int]:
@@ -182,11 +99,7 @@ def setup_process(config: Config) -> tuple[torch.device, int, int]:
     if torch.cuda.is_available():
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
         torch.cuda.set_device(device)
-        torch.backends.cudnn.benchmark = True
-        # TF32 for the fp32 matrix products and convolutions that autocast leaves in fp32; the geometry
-        # (camera projection, sampling grids, curves) is not a matrix product (pipeline/camera.py)
-        torch.backends.cuda.matmul.allow_tf32 = True
-        torch.backends.cudnn.allow_tf32 = True
+        cuda_settings(device)
     else:
         device = torch.device("cpu")
     if config.train.threads:
@@ -228,6 +141,17 @@ def use_dataset_range(config: Config, data_dir: Path, master: bool) -> None:
 
 
 @dataclass
+class Step:
+    """What one optimiser step returns: the losses (means over the micro-batches, detached, on the device),
+    the gradient norm before clipping, and whether it was applied."""
+
+    losses: dict[str, torch.Tensor]
+    grad_norm: torch.Tensor
+    applied: bool
+    overflow: bool  # fp16 only: the GradScaler's overflow (a finite loss, gradients beyond fp16), skipped
+
+
+@dataclass
 class Trainer:
     """What one training step needs, and the state a checkpoint keeps."""
 
@@ -240,13 +164,16 @@ class Trainer:
     autocast_dtype: torch.dtype | None
     device: torch.device
     grad_clip: float
-    step: int = 0
+    step: int = 0  # batches stepped through, applied or skipped: the position in the schedule
+    bad_in_a_row: int = 0
+    skipped: int = 0  # non-finite steps, in all
 
-    def train_step(self, batches: list[Batch]) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+    def train_step(self, batches: list[Batch]) -> Step:
         """One optimiser step on the micro-batches of one batch: their gradients add up, each loss weighted
         by 1 / their number (as mmcv's GradientCumulativeOptimizerHook; one batch of them all when they
-        hold as many targets, up to BatchNorm). Returns the losses (their mean over the micro-batches,
-        detached; on the device, unsynchronised) and the gradient norm before clipping."""
+        hold as many targets, up to BatchNorm). A loss or gradient norm that is not finite (on any process)
+        leaves the weights, the optimiser and the schedule as they were. Reading that flag is the step's one
+        wait for the device."""
         self.optimizer.zero_grad(set_to_none=True)
         dtype, weight = self.autocast_dtype, 1.0 / len(batches)
         mean: dict[str, torch.Tensor] = {}
@@ -263,27 +190,44 @@ class Trainer:
                 mean[name] = mean.get(name, 0.0) + value.detach() * weight
         self.scaler.unscale_(self.optimizer)
         grad_norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.grad_clip)
-        self.scaler.step(self.optimizer)
-        self.scaler.update()
-        self.scheduler.step()
+        finite = torch.stack([torch.isfinite(mean["loss"]), torch.isfinite(grad_norm)]).float()
+        if isinstance(self.trained, DistributedDataParallel):
+            dist.all_reduce(finite, op=dist.ReduceOp.MIN)  # every process skips the same steps
+        loss_finite, grad_finite = (bool(flag) for flag in finite.tolist())
+        applied = loss_finite and grad_finite
+        if applied:
+            self.scaler.step(self.optimizer)
+            self.scheduler.step()
+        self.scaler.update()  # fp16: a skipped step lowers the loss scale
         self.step += 1
-        return mean, grad_norm
+        overflow = self.scaler.is_enabled() and loss_finite and not grad_finite
+        if applied or overflow:  # an fp16 overflow is the scaler's to handle, not a fault of the run
+            self.bad_in_a_row = 0
+        else:
+            self.bad_in_a_row += 1
+        self.skipped += not applied
+        return Step(mean, grad_norm.detach(), applied, overflow)
 
-    def save(self, path: Path, epoch: int, config: Config, rng_states: list[dict]) -> None:
-        checkpoint = {
+    def state(self, epoch: int, epoch_steps: int, config: Config, rng_states: list[dict], best: dict) -> dict:
+        """The full state: `epoch` epochs done and `epoch_steps` steps into the next one."""
+        return {
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "scheduler": self.scheduler.state_dict(),
             "scaler": self.scaler.state_dict(),
             "epoch": epoch,
+            "epoch_steps": epoch_steps,
             "step": self.step,
+            "skipped": self.skipped,
+            "bad_in_a_row": self.bad_in_a_row,
+            "best": best,
             "rng": rng_states,
             "config": config.to_dict(),
         }
-        save_checkpoint(checkpoint, path)
 
-    def load(self, checkpoint: dict, rank: int) -> int:
-        """Restore the state of a loaded checkpoint; returns the epoch to start from."""
+    def load(self, checkpoint: dict, rank: int) -> None:
+        """Restore the weights, optimiser, schedule and counts of a loaded checkpoint (the RNG state is
+        restored by `train`, once the epoch's batches are drawn)."""
         if len(checkpoint["rng"]) <= rank:
             raise CheckpointError(
                 f"the checkpoint holds the RNG states of {len(checkpoint['rng'])} process(es): resume with "
@@ -293,9 +237,9 @@ class Trainer:
         self.optimizer.load_state_dict(checkpoint["optimizer"])
         self.scheduler.load_state_dict(checkpoint["scheduler"])
         self.scaler.load_state_dict(checkpoint["scaler"])
-        set_rng_state(checkpoint["rng"][rank])
         self.step = checkpoint["step"]
-        return checkpoint["epoch"]
+        self.skipped = checkpoint.get("skipped", 0)
+        self.bad_in_a_row = checkpoint.get("bad_in_a_row", 0)
 
 
 def mean_losses(losses: dict[str, torch.Tensor], distributed: bool) -> dict[str, torch.Tensor]:
@@ -310,6 +254,8 @@ def mean_losses(losses: dict[str, torch.Tensor], distributed: bool) -> dict[str,
 
 def logged_lines(path: Path) -> list[str]:
     """The complete lines of a log (a kill can cut the last one short)."""
+    if not path.is_file():
+        return []
     return [line for line in path.read_text().splitlines(keepends=True) if line.endswith("\n")]
 
 
@@ -321,14 +267,27 @@ def all_rng_states(distributed: bool) -> list[dict]:
     return states
 
 
+class EpochSampler(DistributedSampler):
+    """DistributedSampler (its order depends on (seed, epoch) only) that can start an epoch part-way:
+    `skip` of this process's samples are left out of the next epoch drawn, and of that one only."""
+
+    skip = 0
+
+    def __iter__(self):
+        indices = list(super().__iter__())
+        skip, self.skip = self.skip, 0
+        return iter(indices[skip:])
+
+
 @dataclass
 class Setup:
     """Everything `train` sets up before its first step (`setup`)."""
 
     config: Config
+    built: Built
     trainer: Trainer
     dataset: PreparedDataset
-    sampler: DistributedSampler
+    sampler: EpochSampler
     loader: DataLoader  # micro-batches; `accumulate` of them make one optimiser step
     accumulate: int
     total_steps: int  # optimiser steps
@@ -345,10 +304,21 @@ class Setup:
     def steps_per_epoch(self) -> int:
         return math.ceil(len(self.loader) / self.accumulate)
 
-    def batches(self):
-        """The epoch's batches, each the list of its micro-batches (the last may hold fewer)."""
+    def batches(self, skip_steps: int = 0, restore: dict | None = None):
+        """The epoch's batches, each the list of its micro-batches (the last may hold fewer), from
+        `skip_steps` steps in. `restore`: an RNG state to set as an uninterrupted run had it there: the
+        loader draws its workers' seed from torch's RNG when it makes an epoch's iterator (every epoch, or
+        the first one with persistent workers), a draw the uninterrupted run made before its checkpoint
+        inside an epoch, and after it at an epoch's end."""
+        self.sampler.skip = skip_steps * self.accumulate * self.loader.batch_size
+        drawn_after = restore is not None and skip_steps == 0 and not self.loader.persistent_workers
+        if drawn_after:
+            set_rng_state(restore)
+        iterator = iter(self.loader)
+        if restore is not None and not drawn_after:
+            set_rng_state(restore)
         group: list[Batch] = []
-        for batch in self.loader:
+        for batch in iterator:
             group.append(batch)
             if len(group) == self.accumulate:
                 yield group
@@ -378,9 +348,7 @@ def setup(config: Config, data_dir: Path, resume: bool = False) -> Setup:
 
     dataset = PreparedDataset(data_dir, train_config.train_split, config, built.needs)
     # One sampler for one or many processes: its order depends on (seed, epoch) only.
-    sampler = DistributedSampler(
-        dataset, num_replicas=world_size, rank=rank, shuffle=True, seed=train_config.seed
-    )
+    sampler = EpochSampler(dataset, num_replicas=world_size, rank=rank, shuffle=True, seed=train_config.seed)
     workers = min(config.data.num_workers, os.cpu_count() or 1)
     loader = DataLoader(
         dataset,
@@ -407,17 +375,32 @@ def setup(config: Config, data_dir: Path, resume: bool = False) -> Setup:
     trainer = Trainer(model, trained, built.loss, optimizer, scheduler,
                       torch.amp.GradScaler("cuda", enabled=needs_scaler), autocast_dtype, device,
                       train_config.grad_clip)  # fmt: skip
-    return Setup(config, trainer, dataset, sampler, loader, accumulate, total_steps, schedule, device, rank,
-                 world_size)  # fmt: skip
+    return Setup(config, built, trainer, dataset, sampler, loader, accumulate, total_steps, schedule, device,
+                 rank, world_size)  # fmt: skip
+
+
+def has_split(data_dir: Path, split: str) -> bool:
+    frames = io.read_table(data_dir, "frames", columns=["split"], filter=pc.field("split") == split)
+    return frames.num_rows > 0
+
+
+def validation_epochs(config: Config) -> set[int]:
+    """The epochs (1-based) after which the run validates: every train.eval_every and the last one."""
+    train_config = config.train
+    every = range(train_config.eval_every, train_config.epochs + 1, train_config.eval_every)
+    return {train_config.epochs, *(every if train_config.eval_every > 0 else ())}
 
 
 class RunFolder:
-    """RUN_DIR (the module's docstring): a new run or one resumed, its log and its checkpoints. Only
-    rank 0 (`master`) writes."""
+    """RUN_DIR (the module's docstring): a new run or one resumed, its logs, its TensorBoard events and
+    its checkpoints. Only rank 0 (`master`) writes."""
 
     def __init__(self, path: Path, master: bool):
         self.path, self.master = path, master
-        self.log_file = None
+        self.log_file = self.val_file = self.events = None
+        self.writer = CheckpointWriter()
+        self.last_checkpoint: tuple[Path, int] | None = None  # (file, step) of the last one written
+        self.best: dict = {}  # metric, value, epoch, step of best.pt
 
     @staticmethod
     def check_free(path: Path, resume: bool, overwrite: bool) -> None:
@@ -426,11 +409,13 @@ class RunFolder:
             raise ValueError(f"{path} holds a run already: continue it with --resume, start it afresh with "
                              "--overwrite, or choose another --out")  # fmt: skip
 
-    def start(self, s: Setup, data_dir: Path) -> int:
-        """A new run: config.json, run.json and an empty log; returns the first epoch, 0."""
+    def start(self, s: Setup, data_dir: Path, validation: str) -> None:
+        """A new run: config.json, run.json and empty logs (an --overwrite'n run's files go)."""
         config = s.config
         if self.master:
             self.path.mkdir(parents=True, exist_ok=True)
+            for stale in (BEST, "val.jsonl"):
+                (self.path / stale).unlink(missing_ok=True)
             config.save(self.path / "config.json")
             run = {
                 "data": str(data_dir.resolve()),
@@ -441,88 +426,210 @@ class RunFolder:
                 "effective_batch_size": config.train.batch_size,  # processes x micro-batches x frames
                 "epochs": config.train.epochs,
                 "schedule": s.schedule,
+                "validation": validation,
                 "device": s.device.type,
                 "targets": dataset_targets(data_dir),  # cli eval / score / train --resume compare them
             }
             (self.path / "run.json").write_text(json.dumps(run, indent=2) + "\n")
             (self.path / "log.jsonl").write_text("")
-        return 0
+            (self.path / "val.jsonl").write_text("")
 
-    def resume(self, trainer: Trainer, data_dir: Path, rank: int) -> int:
+    def resume(self, trainer: Trainer, data_dir: Path, rank: int) -> dict:
         """Continue the run: refuse stale data (the dataset must have the targets the run was trained on),
-        restore its checkpoint (resume_checkpoint) and drop the log lines of steps after it (an interrupted
-        epoch); returns the epoch to start from."""
+        restore its checkpoint (resume_checkpoint) and drop the log and validation lines of steps after it
+        (an interrupted epoch); returns the checkpoint."""
         targets = json.loads((self.path / "run.json").read_text()).get("targets", {})
         check_targets(targets, data_dir, f"the run {self.path}")
-        epoch = trainer.load(resume_checkpoint(self.path, self.master), rank)
+        checkpoint = resume_checkpoint(self.path, self.master)
+        trainer.load(checkpoint, rank)
+        self.best = checkpoint.get("best", {})
+        self.last_checkpoint = (self.path / CHECKPOINT, trainer.step)
         if self.master:
-            lines = logged_lines(self.path / "log.jsonl")
-            kept = "".join(line for line in lines if json.loads(line)["step"] <= trainer.step)
-            io.write_atomic(self.path / "log.jsonl", lambda tmp: tmp.write_text(kept))
-        return epoch
+            for name in ("log.jsonl", "val.jsonl"):
+                lines = logged_lines(self.path / name)
+                kept = "".join(line for line in lines if json.loads(line)["step"] <= trainer.step)
+                io.write_atomic(self.path / name, lambda tmp, kept=kept: tmp.write_text(kept))
+        return checkpoint
 
-    def open_log(self) -> None:
+    def open_logs(self, first_step: int) -> None:
+        """log.jsonl and val.jsonl to append to; TensorBoard events in tb/, those of steps after
+        `first_step` (an interrupted run's) dropped."""
         if self.master:
+            from torch.utils.tensorboard import SummaryWriter
+
             self.log_file = (self.path / "log.jsonl").open("a")
+            self.val_file = (self.path / "val.jsonl").open("a")
+            self.events = SummaryWriter(str(self.path / "tb"), purge_step=first_step + 1, flush_secs=20)
 
-    def log(self, record: dict) -> None:
+    def log(self, record: dict, scalars: dict[str, float]) -> None:
         self.log_file.write(json.dumps(record) + "\n")
         self.log_file.flush()
+        for tag, value in scalars.items():
+            self.events.add_scalar(tag, value, record["step"])
 
-    def save(self, trainer: Trainer, epoch: int, config: Config, rng_states: list[dict]) -> None:
+    def log_validation(self, record: dict) -> None:
+        self.val_file.write(json.dumps(record) + "\n")
+        self.val_file.flush()
+        for name, value in record.items():
+            if name not in ("step", "epoch", "split", "frames"):
+                self.events.add_scalar(f"val/{name}", value, record["step"])
+        self.events.flush()
+
+    def save(self, state: dict, best: bool) -> None:
+        """checkpoint.pt (the one it replaces becomes checkpoint.prev.pt), and best.pt too when `best`;
+        written on the writer's thread."""
+        path = self.path / CHECKPOINT
+        self.last_checkpoint = (path, state["step"])
         if self.master:
-            trainer.save(self.path / CHECKPOINT, epoch, config, rng_states)
+            self.writer.write(state, path, copies=[self.path / BEST] if best else [])
+            if best:
+                io.write_json(self.path / "run.json", {**self.run_json(), "best": self.best})
+
+    def run_json(self) -> dict:
+        return json.loads((self.path / "run.json").read_text())
+
+    def close(self) -> None:
+        """Every checkpoint on disk and every log closed (raises what a checkpoint's writing raised)."""
+        for log in (self.log_file, self.val_file, self.events):
+            if log is not None:
+                log.close()
+        self.log_file = self.val_file = self.events = None
+        self.writer.wait()
 
     def finish(self, summary: dict) -> None:
-        """Close the log; the summary into run.json."""
-        if self.log_file is not None:
-            self.log_file.close()
+        """Close the logs; the summary into run.json."""
+        self.close()
         if self.master:
-            run = json.loads((self.path / "run.json").read_text())
-            io.write_json(self.path / "run.json", {**run, "summary": summary})
+            io.write_json(self.path / "run.json", {**self.run_json(), "summary": summary})
 
 
 @dataclass
 class Tally:
-    """This run's steps, the seconds they took (the waits for data included) and the last loss."""
+    """This run's steps, the seconds they took (the waits for data included), the seconds of those waits
+    since the last log line, the last loss, and the seconds the checkpoints held the steps up."""
 
     steps: int = 0
     seconds: float = 0.0
+    wait: float = 0.0
+    since_log: float = 0.0
     loss: float = float("nan")
+    checkpoint_stall: list[float] = field(default_factory=list)
+
+    def speed(self) -> float:
+        return self.steps / self.seconds if self.seconds else 0.0
 
 
-def train_one_epoch(s: Setup, epoch: int, run: RunFolder, tally: Tally, progress: Progress, task) -> None:
-    """One pass over the training split: a step per batch (its losses averaged over the processes), the
-    progress bar, a log line every train.log_every steps and at the last step."""
+def log_step(s: Setup, run: RunFolder, tally: Tally, epoch: int, step: Step) -> None:
+    """A log line (and TensorBoard scalars) of a logged or skipped step; every rank takes part."""
+    losses = mean_losses(step.losses, s.distributed)
+    values = {name: float(value) for name, value in losses.items()}
+    if step.applied:
+        tally.loss = values["loss"]
+    if not run.master:
+        return
+    batch_size = s.config.train.batch_size
+    record = {
+        "step": s.trainer.step,
+        "epoch": epoch + 1,
+        "lr": s.trainer.optimizer.param_groups[0]["lr"],
+        **values,
+        "grad_norm": float(step.grad_norm),
+        "steps_per_s": tally.speed(),
+        "samples_per_s": tally.speed() * batch_size,
+        "data_wait_share": tally.wait / tally.since_log if tally.since_log else 0.0,
+    }
+    scalars = {f"loss/{name}": value for name, value in values.items()}
+    scalars |= {"lr": record["lr"], "grad_norm": record["grad_norm"]}
+    scalars |= {f"speed/{name}": record[name] for name in ("steps_per_s", "samples_per_s", "data_wait_share")}
+    if s.device.type == "cuda":
+        scalars["gpu/peak_memory_gib"] = torch.cuda.max_memory_allocated(s.device) / 2**30
+    if not step.applied:
+        kind = "fp16 overflow" if step.overflow else "non-finite"
+        record["skipped"] = kind
+        console.print(f"step {record['step']}: skipped ({kind}: {not_finite(record)})", highlight=False)
+    scalars["skipped_steps"] = s.trainer.skipped
+    run.log(record, scalars)
+    tally.wait = tally.since_log = 0.0
+
+
+def not_finite(record: dict) -> str:
+    """The names of a step record's values that are not finite, e.g. `loss, loss_cls, grad_norm`."""
+    names = [k for k, v in record.items() if isinstance(v, float) and not math.isfinite(v)]
+    return ", ".join(names) or "none"
+
+
+def stop_if_diverged(s: Setup, run: RunFolder, step: Step) -> None:
+    """train.max_bad_steps non-finite steps in a row end the run with one line."""
+    trainer, limit = s.trainer, s.config.train.max_bad_steps
+    if not limit or trainer.bad_in_a_row < limit:
+        return
+    values = {name: float(value) for name, value in mean_losses(step.losses, s.distributed).items()}
+    values["grad_norm"] = float(step.grad_norm)
+    last = run.last_checkpoint
+    resume = (f"the last good checkpoint is {last[0]} (step {last[1]}): --resume from it with another "
+              "--set train.lr=..." if last else "no checkpoint was written yet")  # fmt: skip
+    raise TrainingStopped(
+        f"step {trainer.step}: {trainer.bad_in_a_row} steps in a row with a non-finite loss or gradient norm "
+        f"(--max-bad-steps {limit}; not finite at this step: {not_finite(values)}), none of them applied; "
+        f"{resume}"
+    )
+
+
+def train_one_epoch(s: Setup, epoch: int, run: RunFolder, tally: Tally, bar: Progress, task,
+                    skip_steps: int = 0, restore: dict | None = None) -> None:  # fmt: skip
+    """One pass over the training split (from `skip_steps` in, `restore`: Setup.batches): a step per batch
+    (its losses averaged over the processes), the progress bar, a log line every train.log_every steps,
+    at the last step and at every skipped one, a checkpoint every train.checkpoint_every steps."""
     trainer, train_config = s.trainer, s.config.train
     trainer.model.train()
     s.sampler.set_epoch(epoch)
-    epoch_start = last = time.perf_counter()
-    for batches in s.batches():  # the step time below includes the wait for data
-        losses, grad_norm = trainer.train_step(batches)
+    batch_size, every = train_config.batch_size, train_config.checkpoint_every
+    epoch_end = (epoch + 1) * s.steps_per_epoch
+    batches = s.batches(skip_steps, restore)
+    last = time.perf_counter()
+    while True:
+        group = next(batches, None)  # the step time below includes this wait for data
+        waited = time.perf_counter()
+        if group is None:
+            break
+        step = trainer.train_step(group)
         now = time.perf_counter()
         tally.seconds += now - last
-        last = now
+        tally.since_log += now - last
+        tally.wait += waited - last
         tally.steps += 1
-        speed = tally.steps / tally.seconds
-        step = trainer.step
+        number = trainer.step
         # the losses reach the host on logged steps only: a read each step would wait for the GPU
-        logged = step % train_config.log_every == 0 or step == s.total_steps
-        if logged:
-            losses = mean_losses(losses, s.distributed)  # every rank takes part
-            tally.loss = float(losses["loss"])
-        progress.update(task, advance=1, epoch=epoch + 1, loss=tally.loss, speed=speed)
-        if run.master and logged:
-            run.log({
-                "step": step,
-                "epoch": epoch + 1,
-                "lr": trainer.optimizer.param_groups[0]["lr"],
-                **{k: float(v) for k, v in losses.items()},
-                "grad_norm": float(grad_norm),
-                "steps_per_s": speed,
-                "samples_per_s": speed * train_config.batch_size,
-                "epoch_seconds": time.perf_counter() - epoch_start,
-            })  # fmt: skip
+        if number % train_config.log_every == 0 or number == s.total_steps or not step.applied:
+            log_step(s, run, tally, epoch, step)
+        bar.update(task, advance=1, epoch=epoch + 1, loss=tally.loss, speed=tally.speed() * batch_size)
+        stop_if_diverged(s, run, step)
+        if every and number % every == 0 and number < epoch_end:
+            now = time.perf_counter()
+            states = all_rng_states(s.distributed)  # every rank takes part
+            state = trainer.state(epoch, number - epoch * s.steps_per_epoch, s.config, states, run.best)
+            run.save(state, best=False)
+            tally.checkpoint_stall.append(time.perf_counter() - now)
+        last = time.perf_counter()
+
+
+def validate(s: Setup, validation: Validation, run: RunFolder, epoch: int) -> bool:
+    """Validate (every rank), log it, and say whether it is the best so far by train.best_metric. The
+    training's RNG streams are left as they were: validating does not change the training."""
+    states = rng_state()
+    record = {"step": s.trainer.step, "epoch": epoch, **validation(s.built)}
+    set_rng_state(states)
+    metric = s.config.train.best_metric
+    best = not run.best or record[metric] > run.best["value"]
+    if best:
+        run.best = {"metric": metric, "value": record[metric], "epoch": epoch, "step": record["step"]}
+    if run.master:
+        run.log_validation(record)
+        f1s = ", ".join(f"{name} {record[name]:.3f}" for name in ("directed_topo_f1", metric))
+        console.print(f"validation at epoch {epoch} (step {record['step']}, {record['frames']} frames of "
+                      f"{record['split']}, {record['seconds']:.1f} s): {f1s}{' (best)' if best else ''}",
+                      highlight=False)  # fmt: skip
+    return best
 
 
 def progress_bar(master: bool) -> Progress:
@@ -530,10 +637,22 @@ def progress_bar(master: bool) -> Progress:
         TextColumn("epoch {task.fields[epoch]}"),
         BarColumn(),
         MofNCompleteColumn(),
-        TextColumn("loss {task.fields[loss]:.3f}  {task.fields[speed]:.2f} steps/s"),
+        TextColumn("loss {task.fields[loss]:.3f}  {task.fields[speed]:.1f} samples/s"),
         TimeElapsedColumn(),
+        TextColumn("left"),
+        TimeRemainingColumn(),  # the bar counts the whole run's steps: the time left for all of it
     ]
     return Progress(*columns, console=console, disable=not master)
+
+
+def validation_plan(config: Config, data_dir: Path) -> str:
+    """What run.json says of the validation during training."""
+    train_config = config.train
+    if not has_split(data_dir, train_config.val_split):
+        return f"none: split {train_config.val_split!r} of {data_dir} has no frames"
+    frames = f"{train_config.eval_frames} frames" if train_config.eval_frames else "all frames"
+    every = f"every {train_config.eval_every} epoch(s) and " if train_config.eval_every else ""
+    return f"{every}after the last epoch, {frames} of {train_config.val_split!r}"
 
 
 def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, stop_after: int = 0,
@@ -547,40 +666,60 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     """
     data_dir, out_dir = Path(data_dir), Path(out_dir)
     RunFolder.check_free(out_dir, resume, overwrite)
+    plan = validation_plan(config, data_dir)
     s = setup(config, data_dir, resume)
+    validation = None
+    if not plan.startswith("none"):
+        validation = Validation(config, data_dir, s.built.needs, s.device, s.trainer.autocast_dtype, s.rank,
+                                s.world_size)  # fmt: skip
     run = RunFolder(out_dir, master=s.rank == 0)
+    start_epoch, skip_steps, restore = 0, 0, None
     if resume:
-        start_epoch = run.resume(s.trainer, data_dir, s.rank)
+        checkpoint = run.resume(s.trainer, data_dir, s.rank)
+        start_epoch, skip_steps = checkpoint["epoch"], checkpoint.get("epoch_steps", 0)
+        restore = checkpoint["rng"][s.rank]
     else:
-        start_epoch = run.start(s, data_dir)
+        run.start(s, data_dir, plan)
     if run.master:
         parameters = sum(p.numel() for p in s.trainer.model.parameters())
         console.print(
             f"{config.model} {config.encoder.modality}: {parameters / 1e6:.2f} M parameters, "
             f"{len(s.dataset)} frames, {s.steps_per_epoch} steps per epoch x {config.train.epochs} epochs "
             f"({s.schedule}), batch {config.train.batch_size} = {s.world_size} process(es) x {s.accumulate} "
-            f"micro-batch(es) x {s.loader.batch_size} frames, on {s.device.type}"
+            f"micro-batch(es) x {s.loader.batch_size} frames, on {s.device.type}; validation {plan}"
         )
-    run.open_log()
+    run.open_logs(s.trainer.step)
     tally = Tally()
     epochs = config.train.epochs
-    with progress_bar(run.master) as progress:
-        task = progress.add_task(
-            "train", total=s.total_steps, completed=s.trainer.step, epoch=start_epoch, loss=0.0, speed=0.0
-        )
-        for epoch in range(start_epoch, min(epochs, start_epoch + stop_after) if stop_after else epochs):
-            train_one_epoch(s, epoch, run, tally, progress, task)
-            states = all_rng_states(s.distributed)  # every rank takes part
-            run.save(s.trainer, epoch + 1, config, states)
+    last_epoch = min(epochs, start_epoch + stop_after) if stop_after else epochs
+    due = validation_epochs(config) if validation is not None else set()
+    try:
+        with progress_bar(run.master) as bar, progress.holding(bar):
+            task = bar.add_task(
+                "train", total=s.total_steps, completed=s.trainer.step, epoch=start_epoch, loss=0.0, speed=0.0
+            )
+            for epoch in range(start_epoch, last_epoch):
+                train_one_epoch(s, epoch, run, tally, bar, task, skip_steps, restore)
+                skip_steps, restore = 0, None
+                best = validate(s, validation, run, epoch + 1) if epoch + 1 in due else False
+                states = all_rng_states(s.distributed)  # every rank takes part
+                run.save(s.trainer.state(epoch + 1, 0, config, states, run.best), best)
+    finally:
+        run.close()
     batch_size = config.train.batch_size
+    stalls = tally.checkpoint_stall
     summary = {
         "final_loss": tally.loss,
         "steps": s.trainer.step,
         "epochs": epochs,
         "schedule": s.schedule,
         "train_seconds": tally.seconds,
-        "steps_per_s": tally.steps / tally.seconds if tally.seconds else 0.0,
-        "samples_per_s": tally.steps * batch_size / tally.seconds if tally.seconds else 0.0,
+        "steps_per_s": tally.speed(),
+        "samples_per_s": tally.speed() * batch_size,
+        "skipped_steps": s.trainer.skipped,
+        "best": run.best,
+        # the longest a step waited for a checkpoint inside an epoch (its copy to the host)
+        "checkpoint_stall_s": max(stalls) if stalls else None,
     }
     if s.device.type == "cuda":  # this process's peak; every rank holds the same model and batch size
         summary["gpu_memory_gib"] = torch.cuda.max_memory_allocated(s.device) / 2**30

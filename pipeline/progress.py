@@ -39,6 +39,17 @@ def track(description: str, total: int) -> Iterator[Callable[..., None]]:
         _shown.pop()
 
 
+@contextmanager
+def holding(bar: Progress) -> Iterator[None]:
+    """`bar` (e.g. `cli train`'s) is on screen: work inside it shows no bar of its own (rich shows one
+    live display at a time)."""
+    _shown.append(bar)
+    try:
+        yield
+    finally:
+        _shown.pop()
+
+
 def tracked(items: Iterable, description: str, total: int) -> Iterator:
     """The items, one step of a `track` bar each."""
     with track(description, total) as advance:

@@ -266,10 +266,10 @@ def test_the_bev_grid_follows_the_dataset_range(tmp_path):
     assert (saved.encoder.bev_h, saved.encoder.bev_w) == (67, 33)  # the tiny preset's 1.5 m cells
     assert len(PreparedDataset(data, "train", saved)) == 4
     # a fresh run into a folder that holds one is refused before anything is written
-    before = {f.name: f.read_bytes() for f in (tmp_path / "run").iterdir()}
+    before = {f.name: f.read_bytes() for f in (tmp_path / "run").iterdir() if f.is_file()}
     with pytest.raises(ValueError, match="holds a run already: continue it with --resume"):
         train(config, data, tmp_path / "run")
-    assert {f.name: f.read_bytes() for f in (tmp_path / "run").iterdir()} == before
+    assert {f.name: f.read_bytes() for f in (tmp_path / "run").iterdir() if f.is_file()} == before
 
 
 def test_a_checkpoint_that_needs_unpickling_is_refused(tmp_path):

@@ -22,8 +22,8 @@ REPO = Path(__file__).resolve().parents[1]
 COMMANDS = get_command(app).commands
 CHOICES = {  # the options whose values are a closed set: typed, so that click lists and checks them
     "prepare": {"dataset", "executor", "on_error"},
-    "train": {"model", "preset", "modality", "path_points"},
-    "eval": {"device"},
+    "train": {"model", "preset", "modality", "path_points", "best_metric"},
+    "eval": {"device", "checkpoint"},
     "score": {"matching", "format_"},
     "roundtrip": {"via"},
     "report": {"reference"},
@@ -91,12 +91,14 @@ def test_the_choices_and_preset_defaults_are_those_of_the_config():
     """`cli --help` does not import torch, so the train options' choices and preset defaults are written
     out in cli.py; they must be those of baselines/config.py and baselines/models."""
     from baselines.config import PAPER_EPOCHS, PRESETS, EncoderConfig
+    from baselines.config import BestMetric as ConfigBestMetric
     from baselines.config import Modality as ConfigModality
     from baselines.models import HEADS, resolve_config
 
     assert typing.get_args(cli.Model) == tuple(HEADS)
     assert typing.get_args(cli.Preset) == tuple(PRESETS)
     assert typing.get_args(cli.Modality) == typing.get_args(ConfigModality)
+    assert typing.get_args(cli.BestMetric) == typing.get_args(ConfigBestMetric)
     presets = {name: resolve_config(name) for name in PRESETS}  # LaneGAP, cli train's default model
     assert PAPER_EPOCHS == {"nuscenes": 110, "av2": 24}
     values = {

@@ -26,7 +26,8 @@ import torch
 from test_baselines_train import write_toy_dataset
 from typer.testing import CliRunner
 
-from baselines.train import load_checkpoint, logged_lines
+from baselines.checkpoint import load_checkpoint
+from baselines.train import logged_lines
 from benchmark.metrics import METRIC_VERSION, MetricParams
 from benchmark.score import score_pairs
 from cli import app

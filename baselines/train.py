@@ -140,6 +140,16 @@ def use_dataset_range(config: Config, data_dir: Path, master: bool) -> None:
     encoder.x_range, encoder.y_range, encoder.bev_w, encoder.bev_h = crop[0], crop[1], bev_w, bev_h
 
 
+def batch_norm_statistics(model: torch.nn.Module) -> list[torch.Tensor]:
+    """The running statistics of every BatchNorm: a forward pass in training mode moves them."""
+    return [
+        tensor
+        for module in model.modules()
+        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm) and module.track_running_stats
+        for tensor in (module.running_mean, module.running_var, module.num_batches_tracked)
+    ]
+
+
 @dataclass
 class Step:
     """What one optimiser step returns: the losses (means over the micro-batches, detached, on the device),
@@ -175,6 +185,8 @@ class Trainer:
         leaves the weights, the optimiser and the schedule as they were. Reading that flag is the step's one
         wait for the device."""
         self.optimizer.zero_grad(set_to_none=True)
+        statistics = batch_norm_statistics(self.model)
+        kept = [tensor.clone() for tensor in statistics]  # a skipped step's forward must not move them
         dtype, weight = self.autocast_dtype, 1.0 / len(batches)
         mean: dict[str, torch.Tensor] = {}
         for index, batch in enumerate(batches):
@@ -198,6 +210,8 @@ class Trainer:
         if applied:
             self.scaler.step(self.optimizer)
             self.scheduler.step()
+        else:
+            torch._foreach_copy_(statistics, kept)
         self.scaler.update()  # fp16: a skipped step lowers the loss scale
         self.step += 1
         overflow = self.scaler.is_enabled() and loss_finite and not grad_finite

@@ -64,7 +64,9 @@ def test_torchrun_two_processes_match_one_process(tmp_path):
     assert done.returncode == 0, done.stderr[-3000:]
 
     # (a) rank 0 alone writes: one log line per step, the run's files and nothing else
-    assert sorted(p.name for p in run.iterdir()) == ["checkpoint.pt", "config.json", "log.jsonl", "run.json"]
+    assert sorted(p.name for p in run.iterdir()) == [
+        "best.pt", "checkpoint.pt", "config.json", "log.jsonl", "run.json", "tb", "val.jsonl"
+    ]
     log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log] == [1, 2]  # 8 frames, 2 per process and step
     summaries = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
@@ -79,6 +81,13 @@ def test_torchrun_two_processes_match_one_process(tmp_path):
     assert result.exit_code == 0, result.output
     metrics = json.loads((run / "metrics.json").read_text())
     assert (metrics["world_size"], metrics["effective_batch_size"]) == (2, 4)
+    # each process validated its 4 frames; gathered, the scores are one process's cli eval's to the digit
+    (validation,) = [json.loads(line) for line in (run / "val.jsonl").read_text().splitlines()]
+    assert validation["frames"] == FRAMES and validation["step"] == 2
+    for mode in ("directed", "undirected"):
+        for metric in ("topo", "junction_topo"):
+            assert validation[f"{mode}_{metric}_f1"] == metrics[mode][metric]["f1"], (mode, metric)
+    assert validation["miou"] == metrics["miou"]
 
     # (c) the normaliser is summed over the processes: 2 x 2 frames train as 1 x 4 frames
     first_step = [lanes[i] for i in list(DistributedSampler(range(FRAMES), 1, 0, seed=SEED))[:4]]

@@ -680,8 +680,8 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     """
     data_dir, out_dir = Path(data_dir), Path(out_dir)
     RunFolder.check_free(out_dir, resume, overwrite)
-    plan = validation_plan(config, data_dir)
     s = setup(config, data_dir, resume)
+    plan = validation_plan(config, data_dir)
     validation = None
     if not plan.startswith("none"):
         validation = Validation(config, data_dir, s.built.needs, s.device, s.trainer.autocast_dtype, s.rank,

@@ -95,7 +95,7 @@ DRYRUN := gpu_dryrun
 # gpu-smoke runs gpu_check on tiny data on any device; gpu-dryrun (CI, after the tests) downloads the GPU
 # machine's wheelhouse, then runs the offline path on this machine's CPUs: a wheelhouse for this Python,
 # .venv less the packages that the GPU image lacks as that image, then gpu_setup.sh --smoke (its limit
-# 1800 s; its results in gpu_dryrun/out as on the device).
+# 3600 s; its results in gpu_dryrun/out as on the device).
 ifneq ($(wildcard $(WHEELHOUSE)/lanegraph-*.whl),)
 gpu-check:
 	bash baselines/gpu_setup.sh

@@ -168,10 +168,10 @@ def test_without_step_times_the_gpu_check_trains_the_short_fixed_schedule(tmp_pa
     from baselines.gpu_check import FALLBACK_EPOCHS, schedule
 
     prepared = tmp_path / "not_read"  # neither the fixed schedule nor --epochs reads the data
-    epochs, why = schedule(None, False, None, prepared, 120.0)
+    epochs, why = schedule(None, False, None, prepared, 110.0)
     assert epochs == FALLBACK_EPOCHS == 2 and "bench_step failed" in why
-    assert schedule(5, False, None, prepared, 120.0) == (5, "--epochs")
-    assert schedule(None, True, None, prepared, 120.0) == (1, "--smoke")
+    assert schedule(5, False, None, prepared, 110.0) == (5, "--epochs")
+    assert schedule(None, True, None, prepared, 110.0) == (1, "--smoke")
 
 
 def test_the_gpu_check_archives_each_finished_run(tmp_path):

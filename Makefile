@@ -136,6 +136,11 @@ bench: $(STAMP)
 bench-train: $(STAMP)
 	$(PY) baselines/bench_train.py
 
+# what a long run's safety costs, per model: a validation frame against a training frame, a checkpoint's
+# stall (its copy to the host) against its hash and write (docs/EXPERIMENTS.md, 2026-12-06)
+bench-long-run: $(STAMP)
+	$(PY) -m baselines.bench_long_run --preset tiny --models lanegap,hdmapnet,maptr,stsu --frames 16
+
 # each model's training step time under the gpu preset on this machine's device (before make gpu-check),
 # under cli train's settings (bf16 autocast, cuDNN benchmark, TF32 on CUDA)
 bench-step: $(STAMP)
@@ -145,4 +150,4 @@ lint: $(STAMP)
 	.venv/bin/ruff check .
 
 clean:
-	rm -rf .venv $(DEMO) $(DEMO_ALL) gpu_check gpu_smoke bench_step .venv-gpu gpu_check_out $(DRYRUN)
+	rm -rf .venv $(DEMO) $(DEMO_ALL) gpu_check gpu_smoke bench_step bench_long_run .venv-gpu gpu_check_out $(DRYRUN)

@@ -40,7 +40,7 @@ PRESET_DEFAULTS = {  # the presets' values of the `cli train` options that defau
     "batch_size": "paper 32, tiny 2, gpu 8",
     "modality": "paper camera, tiny fusion, gpu fusion",
     "path_points": "paper 30, tiny 20, gpu 30",
-    "eval_every": "paper 1, tiny 1, gpu 1",
+    "eval_every": "paper 4, tiny 1, gpu 4",
 }
 PATH_POINTS = Literal[10, 20, 30, 40]  # the paper's counts of points per path (Tab. 8)
 JSON_HELP = "Print the result as one JSON line instead of the tables (for scripts)"

@@ -223,7 +223,8 @@ def paper() -> Config:
             cache_samples=False,
             num_workers=4,
         ),
-        train=TrainConfig(epochs=0, batch_size=32, max_batch_per_device=4),
+        # validation every 4 epochs: under 10 % of the training time (docs/EXPERIMENTS.md, 2026-12-06)
+        train=TrainConfig(epochs=0, batch_size=32, max_batch_per_device=4, eval_every=4),
     )
 
 
@@ -300,7 +301,9 @@ def gpu() -> Config:
             cache_samples=False,
             num_workers=8,
         ),
-        train=TrainConfig(epochs=16, batch_size=8, lr=1e-3, backbone_lr_mult=1.0, warmup_iters=100),
+        train=TrainConfig(
+            epochs=16, batch_size=8, lr=1e-3, backbone_lr_mult=1.0, warmup_iters=100, eval_every=4
+        ),
     )
 
 

@@ -400,9 +400,8 @@ def has_split(data_dir: Path, split: str) -> bool:
 
 def validation_epochs(config: Config) -> set[int]:
     """The epochs (1-based) after which the run validates: every train.eval_every and the last one."""
-    train_config = config.train
-    every = range(train_config.eval_every, train_config.epochs + 1, train_config.eval_every)
-    return {train_config.epochs, *(every if train_config.eval_every > 0 else ())}
+    epochs, every = config.train.epochs, config.train.eval_every
+    return {epochs, *(range(every, epochs + 1, every) if every > 0 else ())}
 
 
 class RunFolder:

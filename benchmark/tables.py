@@ -30,10 +30,16 @@ def prepare_table(summary: dict) -> Table:
 
 
 def train_table(summary: dict) -> Table:
-    """`cli train`'s summary: steps, final loss and speed."""
-    table = Table("steps", "final loss", "train seconds", "steps/s")
-    table.add_row(str(summary["steps"]), f"{summary['final_loss']:.4f}", f"{summary['train_seconds']:.1f}",
-                  f"{summary['steps_per_s']:.2f}")  # fmt: skip
+    """`cli train`'s summary: steps (and those skipped as not finite), final loss, speed, and the best
+    validation (best.pt) where the run validated."""
+    table = Table("steps", "skipped", "final loss", "train seconds", "samples/s")
+    row = [str(summary["steps"]), str(summary.get("skipped_steps", 0)), f"{summary['final_loss']:.4f}",
+           f"{summary['train_seconds']:.1f}", f"{summary['samples_per_s']:.2f}"]  # fmt: skip
+    best = summary.get("best")
+    if best:
+        table.add_column("best (best.pt)")
+        row.append(f"{best['metric']} {best['value']:.3f} at epoch {best['epoch']}")
+    table.add_row(*row)
     return table
 
 

@@ -29,7 +29,7 @@ FRAMES, SEED = 8, toy_config().train.seed
 TINY = (
     "--preset tiny --modality lidar --epochs 1 --batch-size 4 --path-points 10 --no-aux-seg "
     "--set train.threads=1 --set train.log_every=1 --set train.val_split=train "
-    "--set decoder.lane_head_width=0"
+    "--set decoder.lane_head_width=0 --set decoder.score_threshold=0.0"  # every path kept: scores above 0
 )
 
 
@@ -83,7 +83,7 @@ def test_torchrun_two_processes_match_one_process(tmp_path):
     assert (metrics["world_size"], metrics["effective_batch_size"]) == (2, 4)
     # each process validated its 4 frames; gathered, the scores are one process's cli eval's to the digit
     (validation,) = [json.loads(line) for line in (run / "val.jsonl").read_text().splitlines()]
-    assert validation["frames"] == FRAMES and validation["step"] == 2
+    assert validation["frames"] == FRAMES and validation["step"] == 2 and validation["directed_topo_f1"] > 0
     for mode in ("directed", "undirected"):
         for metric in ("topo", "junction_topo"):
             assert validation[f"{mode}_{metric}_f1"] == metrics[mode][metric]["f1"], (mode, metric)

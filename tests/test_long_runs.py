@@ -92,6 +92,16 @@ def test_validation_during_training_equals_cli_eval_and_names_the_best(validated
     )
 
 
+def test_validating_does_not_change_the_training(validated_run, tmp_path):
+    """A run validated after every epoch and one validated after the last only train the same weights:
+    validation leaves the RNG streams (the loader's seed draws) as they were."""
+    data, validated = validated_run
+    result = cli("train", "--data", data, "--out", tmp_path / "once", *LONG, "--eval-every", 0)
+    assert result.exit_code == 0, result.output
+    assert len(records(tmp_path / "once" / "val.jsonl")) == 1
+    assert same_weights(tmp_path / "once", validated)
+
+
 def test_tensorboard_events_hold_every_tag(validated_run):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 

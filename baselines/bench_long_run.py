@@ -96,6 +96,7 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=0, help="frames per step (default: the preset's)")
     parser.add_argument("--out", type=Path, default=Path("bench_long_run"))
     args = parser.parse_args()
+    from baselines.bench_step import model_rows
     from baselines.bench_train import prepare_synthetic
 
     data = args.data or prepare_synthetic(args.out / "data")
@@ -105,12 +106,7 @@ def main() -> None:
     columns = {"train_frame_s": "train s/frame", "val_frame_s": "val s/frame", "val_per_train": "val/train",
                "checkpoint_mib": "checkpoint MiB", "checkpoint_copy_s": "copy s (stall)",
                "checkpoint_write_s": "hash+write s"}  # fmt: skip
-    table.add_column("model")
-    for title in columns.values():
-        table.add_column(title, justify="right")
-    for row in rows:
-        table.add_row(row["model"], *(f"{row[key]:.3g}" for key in columns))
-    console.print(table)
+    console.print(model_rows(table, rows, columns))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "bench_long_run.json").write_text(json.dumps(rows, indent=1) + "\n")
     console.print(f"wrote {args.out / 'bench_long_run.json'}")

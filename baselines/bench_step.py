@@ -130,6 +130,16 @@ def time_model(preset: str, model: str, data: Path, steps: int) -> dict:
     }
 
 
+def model_rows(table: Table, rows: list[dict], columns: dict[str, str]) -> Table:
+    """`table` with a row per model: its name, then each of `columns` (key: title) to 3 digits."""
+    table.add_column("model")
+    for title in columns.values():
+        table.add_column(title, justify="right")
+    for row in rows:
+        table.add_row(row["model"], *(f"{row[key]:.3g}" for key in columns))
+    return table
+
+
 def main() -> None:
     checkout_root("python -m baselines.bench_step", "make bench-step in a clone")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -154,12 +164,7 @@ def main() -> None:
     columns = {"first_epoch_s": "first epoch s", "step_s": "s/step", "samples_per_s": "samples/s",
                "s_per_1000_steps": "s / 1000 steps", "peak_gpu_gib": "GPU GiB",
                "inference_ms": "1 frame ms"}  # fmt: skip
-    table.add_column("model")
-    for title in columns.values():
-        table.add_column(title, justify="right")
-    for row in rows:
-        table.add_row(row["model"], *(f"{row[key]:.3g}" for key in columns))
-    console.print(table)
+    console.print(model_rows(table, rows, columns))
     (args.out / "bench_step.json").write_text(json.dumps(rows, indent=1) + "\n")
     console.print(f"{time.perf_counter() - start:.0f} s in all; wrote {args.out / 'bench_step.json'}")
 

@@ -612,7 +612,7 @@ def train_one_epoch(s: Setup, epoch: int, run: RunFolder, tally: Tally, bar: Pro
         tally.wait += waited - last
         tally.steps += 1
         number = trainer.step
-        # the losses reach the host on logged steps only: a read each step would wait for the GPU
+        # the losses are averaged over the processes (a collective) and read on logged steps only
         if number % train_config.log_every == 0 or number == s.total_steps or not step.applied:
             log_step(s, run, tally, epoch, step)
         bar.update(task, advance=1, epoch=epoch + 1, loss=tally.loss, speed=tally.speed() * batch_size)
@@ -638,7 +638,7 @@ def validate(s: Setup, validation: Validation, run: RunFolder, epoch: int) -> bo
         run.best = {"metric": metric, "value": record[metric], "epoch": epoch, "step": record["step"]}
     if run.master:
         run.log_validation(record)
-        f1s = ", ".join(f"{name} {record[name]:.3f}" for name in ("directed_topo_f1", metric))
+        f1s = ", ".join(f"{name} {record[name]:.3f}" for name in dict.fromkeys(("directed_topo_f1", metric)))
         console.print(f"validation at epoch {epoch} (step {record['step']}, {record['frames']} frames of "
                       f"{record['split']}, {record['seconds']:.1f} s): {f1s}{' (best)' if best else ''}",
                       highlight=False)  # fmt: skip

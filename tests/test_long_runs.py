@@ -122,10 +122,20 @@ def test_tensorboard_events_hold_every_tag(validated_run):
     assert all(0 <= r["data_wait_share"] < 1 and r["samples_per_s"] == 2 * r["steps_per_s"] for r in log)
 
 
-def test_killed_inside_an_epoch_after_a_checkpoint_resumes_to_the_same_weights(validated_run, tmp_path):
+@pytest.mark.parametrize("workers", [0, 2])
+def test_killed_inside_an_epoch_after_a_checkpoint_resumes_to_the_same_weights(
+    validated_run, tmp_path, workers
+):
+    """With loader workers (persistent: the loader draws their seed from torch's RNG at the first epoch
+    alone) and without (a draw every epoch)."""
     data, straight = validated_run
+    loader = ["--set", f"data.num_workers={workers}"]
+    if workers:
+        straight = tmp_path / "straight"
+        result = cli("train", "--data", data, "--out", straight, *LONG, *loader)
+        assert result.exit_code == 0, result.output
     run = tmp_path / "run"
-    command = [sys.executable, "-m", "cli", "train", "--data", data, "--out", run, *LONG]
+    command = [sys.executable, "-m", "cli", "train", "--data", data, "--out", run, *LONG, *loader]
     process = subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
     def written(step: int) -> bool:

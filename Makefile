@@ -88,8 +88,8 @@ DRYRUN := gpu_dryrun
 # runs, learns and fits, with its step time, memory and samples/s (the paper's ranking needs the paper's
 # schedule). baselines/gpu_setup.sh runs bench_step, then gpu_check with every model the same epochs, the
 # most that fit by its step times, all under a time limit (LIMIT, 540 s from the script's start), and
-# copies each result into $OUT or gpu_check_out/ as its stage ends, so that a timeout keeps what finished.
-# Where wheelhouse/ holds our wheel (a GPU machine with no package index: `make wheelhouse` here, carry
+# copies each result into $GPU_CHECK_OUT (gpu_check_out/) as its stage ends, so that a timeout keeps what finished.
+# Where wheelhouse/ holds our wheel (a GPU machine with no package index: `make wheelhouse` here, copy
 # wheelhouse/ there), nothing comes from an index: .venv-gpu is made over that machine's python3 and its
 # CUDA torch, from the wheelhouse alone. Else it runs in .venv, set up from the index as for every target.
 # gpu-smoke runs gpu_check on tiny data on any device; gpu-dryrun (CI, after the tests) downloads the GPU
@@ -112,7 +112,7 @@ gpu-dryrun: $(STAMP)
 	$(MAKE) --no-print-directory wheelhouse WHEELHOUSE=$(DRYRUN)/wheelhouse-gpu  # its wheels exist
 	$(MAKE) --no-print-directory wheelhouse WHEELHOUSE=$(DRYRUN)/wheelhouse \
 		WHEEL_PYTHON=$$($(PY) -c 'import sys; print("%d.%d" % sys.version_info[:2])')
-	PYTHON=$(PY) WHEELHOUSE=$(DRYRUN)/wheelhouse VENV=$(DRYRUN)/venv OUT=$(DRYRUN)/out \
+	PYTHON=$(PY) WHEELHOUSE=$(DRYRUN)/wheelhouse VENV=$(DRYRUN)/venv GPU_CHECK_OUT=$(DRYRUN)/out \
 		HIDE="$(GPU_IMAGE_LACKS) lanegraph" bash baselines/gpu_setup.sh --smoke
 
 wheelhouse: $(STAMP)

@@ -17,7 +17,7 @@
 #    gpu` (at most BENCH_LIMIT s) and `python -m baselines.gpu_check --bench bench_step/bench_step.json`
 #    (every model the same epochs, the most that fit; without the bench a short fixed schedule), under
 #    `timeout` so that the whole script ends within LIMIT s of its start.
-# 4. Each result into $OUT (the device tool's folder there, at most 8 files) or gpu_check_out/ as its
+# 4. Each result into $GPU_CHECK_OUT (gpu_check_out/; keep it to 8 files or fewer) as its
 #    stage ends: gpu_setup.log (all output, as it comes), environment.txt, bench_step.json after the
 #    bench; runs.tar.gz (every finished run's metrics.json and run.json) and summary.json so far after each
 #    model (gpu_check --results); report.md and the final summary.json at the end. A timeout keeps what
@@ -25,7 +25,7 @@
 #
 # Options: --smoke   `gpu_check --smoke` (tiny data, one epoch, any device), no bench_step
 #          --system  no venv and no wheelhouse: run with $PYTHON as it is (make gpu-check with .venv)
-# Environment: PYTHON (python3), WHEELHOUSE (wheelhouse), VENV (.venv-gpu), OUT (gpu_check_out),
+# Environment: PYTHON (python3), WHEELHOUSE (wheelhouse), VENV (.venv-gpu), GPU_CHECK_OUT (gpu_check_out),
 #   LIMIT (seconds for the whole script: 540, the device call's budget; 3600 with --smoke, whose CPU run
 #   in CI took 527 s on a quiet machine, 1,277 s beside other jobs), BENCH_LIMIT (120), GPU_CHECK_ARGS
 #   (more gpu_check options, e.g. --train-seconds 100), and, for make gpu-dryrun alone, HIDE:
@@ -35,7 +35,7 @@
 set -euo pipefail
 script=$(cd "$(dirname "$0")" && pwd)/$(basename "$0")
 cd "$(dirname "$script")/.."
-out=${OUT:-gpu_check_out}
+out=${GPU_CHECK_OUT:-gpu_check_out}
 if [[ -z ${GPU_SETUP_LOG:-} ]]; then  # run again, everything into the log too
     # the check's wall time and time limit count from here, set-up included
     GPU_CHECK_STARTED=$(date +%s.%N)
@@ -71,7 +71,7 @@ if ((system)); then
 else
     step "venv $VENV from $WHEELHOUSE, no index"
     if ! compgen -G "$WHEELHOUSE/lanegraph-*.whl" >/dev/null; then
-        echo "no $WHEELHOUSE/lanegraph-*.whl: run make wheelhouse where there is an index, carry $WHEELHOUSE/" >&2
+        echo "no $WHEELHOUSE/lanegraph-*.whl: run make wheelhouse where there is an index and copy $WHEELHOUSE/ here" >&2
         exit 1
     fi
     version=$("$PYTHON" -c 'import sys; print("%d.%d" % sys.version_info[:2])')

@@ -3,7 +3,7 @@
 # of the project's packages):
 #
 #   here, with an index:  make wheelhouse   # wheelhouse/: wheels of the packages that machine lacks + ours
-#   there, carried along: make gpu-check    # runs this script, since wheelhouse/ exists (or: bash this file)
+#   there, copied along: make gpu-check    # runs this script, since wheelhouse/ exists (or: bash this file)
 #
 # 1. $VENV (.venv-gpu) by `$PYTHON -m venv --system-site-packages`, so that it sees the machine's torch,
 #    numpy, scipy, pyarrow, opencv... A venv made from a venv's python (the GPU image's python3 lives in

@@ -86,7 +86,7 @@ DRYRUN := gpu_dryrun
 
 # GPU acceptance: the four models under the gpu preset on one CUDA GPU, within 10 minutes: that each
 # runs, learns and fits, with its step time, memory and samples/s (the paper's ranking needs the paper's
-# schedule). baselines/gpu_setup.sh runs bench_step, then gpu_check with every model the same epochs, the
+# schedule). tools/gpu_setup.sh runs bench_step, then gpu_check with every model the same epochs, the
 # most that fit by its step times, all under a time limit (LIMIT, 540 s from the script's start), and
 # copies each result into $GPU_CHECK_OUT (gpu_check_out/) as its stage ends, so that a timeout keeps what finished.
 # Where wheelhouse/ holds our wheel (a GPU machine with no package index: `make wheelhouse` here, copy
@@ -98,14 +98,14 @@ DRYRUN := gpu_dryrun
 # 3600 s; its results in gpu_dryrun/out as on the device).
 ifneq ($(wildcard $(WHEELHOUSE)/lanegraph-*.whl),)
 gpu-check:
-	bash baselines/gpu_setup.sh
+	bash tools/gpu_setup.sh
 else
 gpu-check: $(STAMP)
-	PYTHON=$(PY) bash baselines/gpu_setup.sh --system
+	PYTHON=$(PY) bash tools/gpu_setup.sh --system
 endif
 
 gpu-smoke: $(STAMP)
-	$(PY) -m baselines.gpu_check --smoke --out gpu_smoke
+	$(PY) -m tools.gpu_check --smoke --out gpu_smoke
 
 gpu-dryrun: $(STAMP)
 	rm -rf $(DRYRUN)
@@ -113,7 +113,7 @@ gpu-dryrun: $(STAMP)
 	$(MAKE) --no-print-directory wheelhouse WHEELHOUSE=$(DRYRUN)/wheelhouse \
 		WHEEL_PYTHON=$$($(PY) -c 'import sys; print("%d.%d" % sys.version_info[:2])')
 	PYTHON=$(PY) WHEELHOUSE=$(DRYRUN)/wheelhouse VENV=$(DRYRUN)/venv GPU_CHECK_OUT=$(DRYRUN)/out \
-		HIDE="$(GPU_IMAGE_LACKS) lanegraph" bash baselines/gpu_setup.sh --smoke
+		HIDE="$(GPU_IMAGE_LACKS) lanegraph" bash tools/gpu_setup.sh --smoke
 
 wheelhouse: $(STAMP)
 	rm -rf $(WHEELHOUSE) build && mkdir -p $(WHEELHOUSE)
@@ -128,23 +128,23 @@ wheelhouse: $(STAMP)
 	du -sh $(WHEELHOUSE)
 
 bench: $(STAMP)
-	$(PY) benchmark/bench_prepare.py
-	$(PY) benchmark/bench_metrics.py
-	$(PY) benchmark/bench_external.py
-	$(PY) baselines/bench_loader.py
+	$(PY) -m tools.bench_prepare
+	$(PY) -m tools.bench_metrics
+	$(PY) -m tools.bench_external
+	$(PY) -m tools.bench_loader
 
 bench-train: $(STAMP)
-	$(PY) baselines/bench_train.py
+	$(PY) -m tools.bench_train
 
 # what a long run's safety costs, per model: a validation frame against a training frame, a checkpoint's
 # stall (its copy to the host) against its hash and write (docs/EXPERIMENTS.md, 2026-12-06)
 bench-long-run: $(STAMP)
-	$(PY) -m baselines.bench_long_run --preset tiny --models lanegap,hdmapnet,maptr,stsu --frames 16
+	$(PY) -m tools.bench_long_run --preset tiny --models lanegap,hdmapnet,maptr,stsu --frames 16
 
 # each model's training step time under the gpu preset on this machine's device (before make gpu-check),
 # under cli train's settings (bf16 autocast, cuDNN benchmark, TF32 on CUDA)
 bench-step: $(STAMP)
-	$(PY) -m baselines.bench_step --preset gpu
+	$(PY) -m tools.bench_step --preset gpu
 
 lint: $(STAMP)
 	.venv/bin/ruff check .

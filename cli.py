@@ -100,7 +100,7 @@ def version_text() -> str:
     (CHANGELOG.md says what each bump means for old files); imports neither torch nor the models."""
     from importlib.metadata import PackageNotFoundError, version
 
-    from benchmark.metrics import METRIC_VERSION
+    from benchmark.metric.params import METRIC_VERSION
     from pipeline.io import SCHEMA_VERSION
 
     try:
@@ -577,7 +577,7 @@ def roundtrip(
       cli roundtrip --data prepared/av2 --via path --out roundtrip_path.json
       cli roundtrip --data prepared/av2 --via pixel --frame-stride 10 --workers 0
     """
-    from benchmark.roundtrip import roundtrip as run_roundtrip
+    from benchmark.graphs.roundtrip import roundtrip as run_roundtrip
     from benchmark.tables import score_table
 
     with reported_errors():
@@ -622,7 +622,7 @@ def report(
       cli report --runs runs --out report
       cli report --runs runs/lanegap --runs runs/maptr --roundtrip rt_path.json --reference paper --out report
     """
-    from benchmark.report import write_report
+    from benchmark.report.writer import write_report
     from benchmark.tables import report_tables
 
     with reported_errors():
@@ -650,7 +650,7 @@ def viz(
       cli viz --pred runs/lanegap/predictions.parquet --gt prepared/av2 --out worst.png
       cli viz --pred runs/lanegap/predictions.parquet --gt prepared/av2 --frame FRAME_ID --camera --out f.png
     """
-    from benchmark.figures import viz as run_viz
+    from benchmark.report.figures import viz as run_viz
 
     with reported_errors():
         result = run_viz(pred, gt, frame, out, camera)

@@ -20,9 +20,8 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from baselines.resnet import BackboneName
-
 Modality = Literal["camera", "lidar", "fusion"]
+BackboneName = Literal["resnet18", "resnet34", "resnet50"]
 # A validation's scores (RUN/val.jsonl, baselines/validate.py) that choose best.pt (train.best_metric).
 BestMetric = Literal[
     "directed_topo_f1",
@@ -94,7 +93,7 @@ def _stack(a: Any, b: Any, like: Any) -> Any:
 class DataConfig:
     """How samples are read. The image settings come twice: for real nuScenes / AV2 and for the synthetic
     data of `cli synth` (its images are already 1/4 and 1/8 of the real sizes, its cameras look level);
-    the loader picks by the dataset's sensor root (baselines/data.py `is_synthetic`)."""
+    the loader picks by the dataset's sensor root (pipeline/manifest.py `is_synthetic`)."""
 
     image_scale_nuscenes: float = 0.5  # image resize ratio of the paper, on real data
     image_scale_av2: float = 0.3

@@ -8,7 +8,6 @@ lane mask on the BEV grid for the auxiliary segmentation.
 
 from __future__ import annotations
 
-import json
 import zlib
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -20,11 +19,12 @@ import pyarrow.feather as feather
 import torch
 
 from baselines.config import Config
-from baselines.encoder import SensorBatch
+from baselines.layers.bev_encoder import SensorBatch
+from baselines.layers.targets import Targets
 from pipeline.camera import scaled_intrinsics
 from pipeline.geometry import ground_height
 from pipeline.io import decode_raster, read_table
-from pipeline.synth import MARKER as SYNTH_MARKER
+from pipeline.manifest import PreparedData, is_synthetic
 
 
 @dataclass
@@ -124,36 +124,19 @@ def lane_mask_from_paths(paths_unit: np.ndarray, bev_h: int, bev_w: int) -> np.n
     return mask.astype(np.int64)
 
 
-def is_synthetic(sensor_root: Path) -> bool:
-    """Whether a raw dataset root was written by `cli synth` (its marker synth.json sits at the root of
-    the output, the nuScenes root's parent and the AV2 sensor root's grandparent)."""
-    root = Path(sensor_root).resolve()
-    return any((folder / SYNTH_MARKER).is_file() for folder in (root, *root.parents[:2]))
-
-
-def dataset_range(data_dir: Path) -> tuple[tuple[float, float], tuple[float, float]] | None:
-    """(x_range, y_range) in metres that a prepared dataset was cropped to (its manifest), if recorded."""
-    manifest_path = Path(data_dir) / "manifest.json"
-    if not manifest_path.is_file():
-        return None
-    crop = json.loads(manifest_path.read_text()).get("range")
-    return ((crop["x_min"], crop["x_max"]), (crop["y_min"], crop["y_max"])) if crop else None
-
-
 class PreparedDataset(torch.utils.data.Dataset):
     """The frames of one split of a prepared dataset, with their sensors and the targets that a model
     `needs` ("paths", "raster"; see baselines/models); the lane mask on the BEV grid always."""
 
     def __init__(
-        self, data_dir: Path, split: str, config: Config, needs: frozenset[str] = frozenset({"paths"})
+        self, data: PreparedData, split: str, config: Config, needs: frozenset[str] = frozenset({"paths"})
     ):
-        self.data_dir = Path(data_dir)
+        self.data_dir = data.path
         self.config = config
         manifest_path = self.data_dir / "manifest.json"
-        manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
-        self.sensor_root = Path(config.data.sensor_root or manifest.get("root", self.data_dir))
+        self.sensor_root = Path(config.data.sensor_root) if config.data.sensor_root else data.sensor_root
         self.synthetic = is_synthetic(self.sensor_root)
-        crop = dataset_range(self.data_dir)
+        crop = data.crop
         model_range = (tuple(config.encoder.x_range), tuple(config.encoder.y_range))
         if crop is not None and crop != model_range:
             # targets outside the model's grid would be silently wrong (unit coordinates beyond [0, 1])
@@ -165,7 +148,7 @@ class PreparedDataset(torch.utils.data.Dataset):
         in_split = pc.field("split") == split
         frames = read_table(self.data_dir, "frames", filter=in_split).sort_by("frame_id").to_pylist()
         if not frames:
-            splits = sorted(set(read_table(self.data_dir, "frames", columns=["split"])["split"].to_pylist()))
+            splits = sorted(data.split_sizes)
             raise ValueError(
                 f"{self.data_dir}: no frames in split {split!r}; its splits are {', '.join(splits)} "
                 "(choose with --set train.train_split=... / train.val_split=..., or `cli eval --split`)"
@@ -305,26 +288,6 @@ class PreparedDataset(torch.utils.data.Dataset):
             rng = np.random.default_rng(zlib.crc32(frame["frame_id"].encode()))
             points = points[np.sort(rng.choice(len(points), limit, replace=False))]
         return points
-
-
-@dataclass
-class Targets:
-    """What the models train on; a model reads the fields of its `needs` (baselines/models)."""
-
-    paths: list[torch.Tensor]  # per frame (G, N, 2) unit BEV coordinates; empty unless "paths"
-    seg: torch.Tensor  # (B, bev_h, bev_w) int64 lane mask on the BEV grid
-    raster_mask: torch.Tensor | None = None  # (B, H, W) uint8: the prepared 0.15 m lane raster ("raster")
-    raster_direction: torch.Tensor | None = None  # (B, H, W) uint8 direction bins, 0 = none ("raster")
-    pieces: list[torch.Tensor] | None = None  # per frame (P, n, 2) unit BEV coordinates ("pieces")
-    piece_links: list[torch.Tensor] | None = None  # per frame (L, 2) int64: piece src ends where dst starts
-
-    def to(self, device: torch.device | str) -> Targets:
-        def move(value):
-            if isinstance(value, list):
-                return [v.to(device, non_blocking=True) for v in value]
-            return None if value is None else value.to(device, non_blocking=True)
-
-        return Targets(*(move(getattr(self, f.name)) for f in fields(self)))
 
 
 @dataclass

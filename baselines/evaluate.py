@@ -8,7 +8,7 @@ unless `floor=False`, the sensor-blind floor and the model's margin over it (bas
 are written at the end, atomically: a failed evaluation leaves the earlier ones as they were.
 
 RUN_DIR/frame_counts.parquet, written just before metrics.json, holds each frame's metric sums: the 95 %
-intervals beside each F1 come from them (benchmark/bootstrap.py), and so do `cli report`'s paired ones.
+intervals beside each F1 come from them (benchmark/metric/bootstrap.py), and so do `cli report`'s paired ones.
 
 A dataset prepared with other target parameters than the run's training data is refused (stale data),
 and so is a damaged checkpoint or one that would need unpickling (baselines/train.py load_checkpoint).
@@ -35,12 +35,13 @@ from baselines.data import PreparedDataset, collate
 from baselines.device import amp_settings, cuda_settings
 from baselines.floor import blind_floor, floor_margins
 from baselines.models import Built, build, load_config, without_pretrained_weights
-from benchmark.bootstrap import DRAWS, add_intervals, check_draws
-from benchmark.metrics import MetricParams
-from benchmark.score import default_range, graphs_from_table, read_graph_table, score_frames, write_run
+from benchmark.graph_table import graphs_from_table, read_graph_table
+from benchmark.metric.bootstrap import DRAWS, add_intervals, check_draws
+from benchmark.metric.params import MetricParams
+from benchmark.score import score_frames, write_run
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
-from pipeline.manifest import check_targets
+from pipeline.manifest import PreparedData
 from pipeline.progress import tracked
 
 
@@ -150,14 +151,14 @@ def floor_scores(
     dataset: PreparedDataset,
     config: Config,
     params: MetricParams,
-    data_dir: Path,
+    data: PreparedData,
 ) -> dict:
     """metrics["floor"]: the sensor-blind floor (baselines/floor.py) and the model's margin over it."""
     in_train = pc.field("split") == config.train.train_split
-    train_ids = io.read_table(data_dir, "frames", ["frame_id"], in_train)["frame_id"].to_pylist()
+    train_ids = io.read_table(data.path, "frames", ["frame_id"], in_train)["frame_id"].to_pylist()
     floor = blind_floor(
         graphs, ground_truth, dataset.frames, train_ids, config.train.train_split, params,
-        data_dir / "floor_cache",
+        data.path / "floor_cache",
     )  # fmt: skip
     floor["margin"] = floor_margins({**metrics, "floor": floor}) if floor["f1"] else None
     return floor
@@ -185,10 +186,10 @@ def evaluate(
     if config.train.threads and device_.type == "cpu":
         torch.set_num_threads(config.train.threads)
     run = json.loads((run_dir / "run.json").read_text())
-    data_dir = Path(data_dir or run["data"])
-    check_targets(run.get("targets", {}), data_dir, f"the run {run_dir}")
+    data = PreparedData.open(data_dir or run["data"])
+    data.check_targets(run.get("targets", {}), f"the run {run_dir}")
     split = split or config.train.val_split
-    dataset = PreparedDataset(data_dir, split, config, built.needs)
+    dataset = PreparedDataset(data, split, config, built.needs)
     workers = min(config.data.num_workers, os.cpu_count() or 1)
     loader = DataLoader(dataset, batch_size=1, num_workers=workers, collate_fn=collate)
     autocast_dtype, _ = amp_settings(device_, config.train.amp)
@@ -196,16 +197,16 @@ def evaluate(
     inference = predict(built, loader, device_, autocast_dtype, warmup_frames, f"predict {split}")
 
     # `cli score` scores every frame of the ground truth; here only the frames of this split.
-    ground_truth = graphs_from_table(read_graph_table(data_dir), data_dir)
-    metric_params = MetricParams(bev_range=default_range(data_dir))
+    ground_truth = graphs_from_table(read_graph_table(data.path), data.path)
+    metric_params = MetricParams(bev_range=data.bev_range)
     scores, frame_counts = score_predictions(inference.graphs, ground_truth, metric_params, bootstrap)
     scores.update(
-        pred=str(run_dir / "predictions.parquet"), gt=str(data_dir), frames_predicted=len(inference.graphs)
+        pred=str(run_dir / "predictions.parquet"), gt=str(data.path), frames_predicted=len(inference.graphs)
     )
     metrics = {
         **scores,
         "split": split,
-        "data": str(data_dir),
+        "data": str(data.path),
         "params": sum(p.numel() for p in built.model.parameters()),  # the thresholds: metric_params
         "model": config.model,
         "weights": source,  # which checkpoint: its file, epoch and step
@@ -221,7 +222,7 @@ def evaluate(
     }
     if floor:
         metrics["floor"] = floor_scores(
-            metrics, inference.graphs, ground_truth, dataset, config, metric_params, data_dir
+            metrics, inference.graphs, ground_truth, dataset, config, metric_params, data
         )
     metrics["config"] = config.to_dict()
     write_run(run_dir, inference.graphs, frame_counts, metrics, run.get("targets", {}))

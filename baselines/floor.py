@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.metrics import MetricParams
+from benchmark.metric.params import MetricParams
 from benchmark.score import score_pairs
 from pipeline.lane_graph import LaneGraph
 from pipeline.progress import track

@@ -16,7 +16,6 @@ counted and logged, and train.max_bad_steps of them in a row stop the run (Train
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import random
@@ -26,7 +25,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pyarrow.compute as pc
 import torch
 import torch.distributed as dist
 from rich.console import Console
@@ -42,22 +40,19 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
 
 from baselines.checkpoint import (
-    BEST,
-    CHECKPOINT,
     CheckpointError,
-    CheckpointWriter,
-    resume_checkpoint,
     rng_state,
     set_rng_state,
 )
 from baselines.config import PAPER_EPOCHS, Config
-from baselines.data import Batch, PreparedDataset, collate, dataset_range
+from baselines.data import Batch, PreparedDataset, collate
 from baselines.device import amp_settings, cuda_settings
 from baselines.models import build, check_backbone_weights, without_pretrained_weights
 from baselines.models.base import Built
+from baselines.run_folder import RunFolder
 from baselines.validate import Validation
-from pipeline import io, progress
-from pipeline.manifest import check_targets, dataset_targets
+from pipeline import progress
+from pipeline.manifest import PreparedData
 
 console = Console(stderr=True)
 
@@ -108,24 +103,24 @@ def setup_process(config: Config) -> tuple[torch.device, int, int]:
     return device, rank, world_size
 
 
-def use_dataset_schedule(config: Config, data_dir: Path) -> str:
+def use_dataset_schedule(config: Config, data: PreparedData) -> str:
     """train.epochs 0 (the paper preset) takes the paper's schedule of the prepared dataset's kind
     (PAPER_EPOCHS); returns where the epochs came from, for run.json and the report."""
     if config.train.epochs:
         return "set (preset or --epochs)"
-    manifest = Path(data_dir) / "manifest.json"
-    kind = json.loads(manifest.read_text()).get("dataset") if manifest.is_file() else None
+    kind = data.kind
     if kind not in PAPER_EPOCHS:
+        manifest = data.path / "manifest.json"
         raise ValueError(f"{manifest}: no dataset kind (nuscenes or av2) to take the paper's schedule from: "
                          "give --epochs")  # fmt: skip
     config.train.epochs = PAPER_EPOCHS[kind]
     return f"the paper's {kind} schedule"
 
 
-def use_dataset_range(config: Config, data_dir: Path, master: bool) -> None:
+def use_dataset_range(config: Config, data: PreparedData, master: bool) -> None:
     """The BEV grid covers what the dataset was cropped to, at the preset's cell size (the tiny
     preset's 40 x 20 cells of 1.5 m over 30 x 60 m become 67 x 33 over 50 x 100 m)."""
-    crop = dataset_range(data_dir)
+    crop = data.crop
     encoder = config.encoder
     if crop is None or (tuple(encoder.x_range), tuple(encoder.y_range)) == crop:
         return
@@ -266,13 +261,6 @@ def mean_losses(losses: dict[str, torch.Tensor], distributed: bool) -> dict[str,
     return dict(zip(losses, values, strict=True))
 
 
-def logged_lines(path: Path) -> list[str]:
-    """The complete lines of a log (a kill can cut the last one short)."""
-    if not path.is_file():
-        return []
-    return [line for line in path.read_text().splitlines(keepends=True) if line.endswith("\n")]
-
-
 def all_rng_states(distributed: bool) -> list[dict]:
     if not distributed:
         return [rng_state()]
@@ -341,7 +329,7 @@ class Setup:
             yield group
 
 
-def setup(config: Config, data_dir: Path, resume: bool = False) -> Setup:
+def setup(config: Config, data: PreparedData, resume: bool = False) -> Setup:
     """The process (DDP under torchrun), the BEV grid and schedule of the dataset, the model and its loss
     on the device (built from the same seed on every rank; on resume without reading the pretrained
     weights, which the checkpoint holds), the loader, the optimiser and its schedule, AMP."""
@@ -349,8 +337,8 @@ def setup(config: Config, data_dir: Path, resume: bool = False) -> Setup:
         check_backbone_weights(config)
     device, rank, world_size = setup_process(config)
     train_config = config.train
-    use_dataset_range(config, data_dir, rank == 0)
-    schedule = use_dataset_schedule(config, data_dir)
+    use_dataset_range(config, data, rank == 0)
+    schedule = use_dataset_schedule(config, data)
     micro_batch, accumulate = train_config.micro_batches(world_size)
     # The same seed on every rank builds the same model; the ranks' streams differ from here on.
     torch.manual_seed(train_config.seed)
@@ -360,7 +348,7 @@ def setup(config: Config, data_dir: Path, resume: bool = False) -> Setup:
     np.random.seed(train_config.seed + rank)
     torch.manual_seed(train_config.seed + rank)
 
-    dataset = PreparedDataset(data_dir, train_config.train_split, config, built.needs)
+    dataset = PreparedDataset(data, train_config.train_split, config, built.needs)
     # One sampler for one or many processes: its order depends on (seed, epoch) only.
     sampler = EpochSampler(dataset, num_replicas=world_size, rank=rank, shuffle=True, seed=train_config.seed)
     workers = min(config.data.num_workers, os.cpu_count() or 1)
@@ -393,127 +381,10 @@ def setup(config: Config, data_dir: Path, resume: bool = False) -> Setup:
                  rank, world_size)  # fmt: skip
 
 
-def has_split(data_dir: Path, split: str) -> bool:
-    frames = io.read_table(data_dir, "frames", columns=["split"], filter=pc.field("split") == split)
-    return frames.num_rows > 0
-
-
 def validation_epochs(config: Config) -> set[int]:
     """The epochs (1-based) after which the run validates: every train.eval_every and the last one."""
     epochs, every = config.train.epochs, config.train.eval_every
     return {epochs, *(range(every, epochs + 1, every) if every > 0 else ())}
-
-
-class RunFolder:
-    """RUN_DIR (the module's docstring): a new run or one resumed, its logs, its TensorBoard events and
-    its checkpoints. Only rank 0 (`master`) writes."""
-
-    def __init__(self, path: Path, master: bool):
-        self.path, self.master = path, master
-        self.log_file = self.val_file = self.events = None
-        self.writer = CheckpointWriter()
-        self.last_checkpoint: tuple[Path, int] | None = None  # (file, step) of the last one written
-        self.best: dict = {}  # metric, value, epoch, step of best.pt
-
-    @staticmethod
-    def check_free(path: Path, resume: bool, overwrite: bool) -> None:
-        """Refuse to start afresh in a folder that holds a run: its checkpoint and log would be replaced."""
-        if not resume and not overwrite and (path / "config.json").exists():
-            raise ValueError(f"{path} holds a run already: continue it with --resume, start it afresh with "
-                             "--overwrite, or choose another --out")  # fmt: skip
-
-    def start(self, s: Setup, data_dir: Path, validation: str) -> None:
-        """A new run: config.json, run.json and empty logs (an --overwrite'n run's files go)."""
-        config = s.config
-        if self.master:
-            self.path.mkdir(parents=True, exist_ok=True)
-            for stale in (BEST, "val.jsonl"):
-                (self.path / stale).unlink(missing_ok=True)
-            config.save(self.path / "config.json")
-            run = {
-                "data": str(data_dir.resolve()),
-                "world_size": s.world_size,
-                "batch_per_process": config.train.batch_size // s.world_size,
-                "accumulate": s.accumulate,  # micro-batches per optimiser step, in each process
-                "batch_per_forward": config.train.batch_size // s.world_size // s.accumulate,
-                "effective_batch_size": config.train.batch_size,  # processes x micro-batches x frames
-                "epochs": config.train.epochs,
-                "schedule": s.schedule,
-                "validation": validation,
-                "device": s.device.type,
-                "targets": dataset_targets(data_dir),  # cli eval / score / train --resume compare them
-            }
-            (self.path / "run.json").write_text(json.dumps(run, indent=2) + "\n")
-            (self.path / "log.jsonl").write_text("")
-            (self.path / "val.jsonl").write_text("")
-
-    def resume(self, trainer: Trainer, data_dir: Path, rank: int) -> dict:
-        """Continue the run: refuse stale data (the dataset must have the targets the run was trained on),
-        restore its checkpoint (resume_checkpoint) and drop the log and validation lines of steps after it
-        (an interrupted epoch); returns the checkpoint."""
-        targets = json.loads((self.path / "run.json").read_text()).get("targets", {})
-        check_targets(targets, data_dir, f"the run {self.path}")
-        checkpoint = resume_checkpoint(self.path, self.master)
-        trainer.load(checkpoint, rank)
-        self.best = checkpoint.get("best", {})
-        self.last_checkpoint = (self.path / CHECKPOINT, trainer.step)
-        if self.master:
-            for name in ("log.jsonl", "val.jsonl"):
-                lines = logged_lines(self.path / name)
-                kept = "".join(line for line in lines if json.loads(line)["step"] <= trainer.step)
-                io.write_atomic(self.path / name, lambda tmp, kept=kept: tmp.write_text(kept))
-        return checkpoint
-
-    def open_logs(self, first_step: int) -> None:
-        """log.jsonl and val.jsonl to append to; TensorBoard events in tb/, those of steps after
-        `first_step` (an interrupted run's) dropped."""
-        if self.master:
-            from torch.utils.tensorboard import SummaryWriter
-
-            self.log_file = (self.path / "log.jsonl").open("a")
-            self.val_file = (self.path / "val.jsonl").open("a")
-            self.events = SummaryWriter(str(self.path / "tb"), purge_step=first_step + 1, flush_secs=20)
-
-    def log(self, record: dict, scalars: dict[str, float]) -> None:
-        self.log_file.write(json.dumps(record) + "\n")
-        self.log_file.flush()
-        for tag, value in scalars.items():
-            self.events.add_scalar(tag, value, record["step"])
-
-    def log_validation(self, record: dict) -> None:
-        self.val_file.write(json.dumps(record) + "\n")
-        self.val_file.flush()
-        for name, value in record.items():
-            if name not in ("step", "epoch", "split", "frames"):
-                self.events.add_scalar(f"val/{name}", value, record["step"])
-        self.events.flush()
-
-    def save(self, state: dict, best: bool) -> None:
-        """checkpoint.pt (the one it replaces becomes checkpoint.prev.pt), and best.pt too when `best`;
-        written on the writer's thread."""
-        path = self.path / CHECKPOINT
-        self.last_checkpoint = (path, state["step"])
-        if self.master:
-            self.writer.write(state, path, copies=[self.path / BEST] if best else [])
-            if best:
-                io.write_json(self.path / "run.json", {**self.run_json(), "best": self.best})
-
-    def run_json(self) -> dict:
-        return json.loads((self.path / "run.json").read_text())
-
-    def close(self) -> None:
-        """Every checkpoint on disk and every log closed (raises what a checkpoint's writing raised)."""
-        for log in (self.log_file, self.val_file, self.events):
-            if log is not None:
-                log.close()
-        self.log_file = self.val_file = self.events = None
-        self.writer.wait()
-
-    def finish(self, summary: dict) -> None:
-        """Close the logs; the summary into run.json."""
-        self.close()
-        if self.master:
-            io.write_json(self.path / "run.json", {**self.run_json(), "summary": summary})
 
 
 @dataclass
@@ -658,14 +529,33 @@ def progress_bar(master: bool) -> Progress:
     return Progress(*columns, console=console, disable=not master)
 
 
-def validation_plan(config: Config, data_dir: Path) -> str:
+def validation_plan(config: Config, data: PreparedData) -> str:
     """What run.json says of the validation during training."""
     train_config = config.train
-    if not has_split(data_dir, train_config.val_split):
-        return f"none: split {train_config.val_split!r} of {data_dir} has no frames"
+    if not data.split_sizes.get(train_config.val_split):
+        return f"none: split {train_config.val_split!r} of {data.path} has no frames"
     frames = f"{train_config.eval_frames} frames" if train_config.eval_frames else "all frames"
     every = f"every {train_config.eval_every} epoch(s) and " if train_config.eval_every else ""
     return f"{every}after the last epoch, {frames} of {train_config.val_split!r}"
+
+
+def run_record(s: Setup, data: PreparedData, validation: str) -> dict:
+    """run.json of a new run: the data, the processes and batch sizes, the schedule, the validation plan,
+    the device and the dataset's target parameters."""
+    config = s.config
+    return {
+        "data": str(data.path.resolve()),
+        "world_size": s.world_size,
+        "batch_per_process": config.train.batch_size // s.world_size,
+        "accumulate": s.accumulate,  # micro-batches per optimiser step, in each process
+        "batch_per_forward": config.train.batch_size // s.world_size // s.accumulate,
+        "effective_batch_size": config.train.batch_size,  # processes x micro-batches x frames
+        "epochs": config.train.epochs,
+        "schedule": s.schedule,
+        "validation": validation,
+        "device": s.device.type,
+        "targets": data.targets,  # cli eval / score / train --resume compare them
+    }
 
 
 def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, stop_after: int = 0,
@@ -677,22 +567,25 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     overwrite: start afresh in a folder that holds a run (refused otherwise: its checkpoint and log
     would be replaced).
     """
-    data_dir, out_dir = Path(data_dir), Path(out_dir)
+    out_dir = Path(out_dir)
     RunFolder.check_free(out_dir, resume, overwrite)
-    s = setup(config, data_dir, resume)
-    plan = validation_plan(config, data_dir)
+    data = PreparedData.open(data_dir)
+    s = setup(config, data, resume)
+    plan = validation_plan(config, data)
     validation = None
     if not plan.startswith("none"):
-        validation = Validation(config, data_dir, s.built.needs, s.device, s.trainer.autocast_dtype, s.rank,
+        validation = Validation(config, data, s.built.needs, s.device, s.trainer.autocast_dtype, s.rank,
                                 s.world_size)  # fmt: skip
     run = RunFolder(out_dir, master=s.rank == 0)
     start_epoch, skip_steps, restore = 0, 0, None
     if resume:
-        checkpoint = run.resume(s.trainer, data_dir, s.rank)
+        checkpoint = run.resume(data)
+        s.trainer.load(checkpoint, s.rank)
+        run.resumed(checkpoint)
         start_epoch, skip_steps = checkpoint["epoch"], checkpoint.get("epoch_steps", 0)
         restore = checkpoint["rng"][s.rank]
     else:
-        run.start(s, data_dir, plan)
+        run.start(config, run_record(s, data, plan))
     if run.master:
         parameters = sum(p.numel() for p in s.trainer.model.parameters())
         console.print(

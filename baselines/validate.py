@@ -1,6 +1,6 @@
 """Validation during training (`cli train --eval-every`): the validation split, or a fixed seeded subset
 of it (`--eval-frames`), through the model's post-processing into lane graphs and then the metric, with
-`cli eval`'s code (baselines/evaluate.py `predict`, benchmark/metrics.py `Totals`).
+`cli eval`'s code (baselines/evaluate.py `predict`, benchmark/metric/totals.py `Totals`).
 
 Under torchrun every process predicts and scores its share of the frames; each frame's counts are
 gathered and added in frame order, and the metric's sums are exact (FractionSum), so the scores do not
@@ -12,7 +12,6 @@ from __future__ import annotations
 import os
 import time
 import typing
-from pathlib import Path
 
 import numpy as np
 import pyarrow.compute as pc
@@ -24,9 +23,11 @@ from baselines.config import BestMetric, Config
 from baselines.data import PreparedDataset, collate
 from baselines.evaluate import predict
 from baselines.models.base import Built
-from benchmark.metrics import MetricParams, Totals
-from benchmark.score import default_range, graphs_from_table
+from benchmark.graph_table import graphs_from_table
+from benchmark.metric.params import MetricParams
+from benchmark.metric.totals import Totals
 from pipeline import io
+from pipeline.manifest import PreparedData
 
 VAL_METRICS = typing.get_args(BestMetric)  # the scores of a validation record (RUN/val.jsonl)
 
@@ -54,17 +55,17 @@ class Validation:
     """The validation frames of this process, their ground truth and the metric's parameters; calling it
     scores a model. Every process of a torchrun must call it together."""
 
-    def __init__(self, config: Config, data_dir: Path, needs: frozenset[str], device: torch.device,
+    def __init__(self, config: Config, data: PreparedData, needs: frozenset[str], device: torch.device,
                  autocast_dtype: torch.dtype | None, rank: int = 0, world_size: int = 1):  # fmt: skip
         train = config.train
         self.split, self.device, self.autocast_dtype = train.val_split, device, autocast_dtype
-        dataset = PreparedDataset(data_dir, self.split, config, needs)
+        dataset = PreparedDataset(data, self.split, config, needs)
         indices = chosen_frames(len(dataset), train.eval_frames, train.seed)
         self.frames = len(indices)
         ids = {dataset.frames[int(i)]["frame_id"] for i in indices}
-        table = io.read_table(data_dir, "graphs", filter=pc.field("frame_id").isin(sorted(ids)))
-        self.ground_truth = graphs_from_table(table, data_dir / "graphs")
-        self.params = MetricParams(bev_range=default_range(data_dir))
+        table = io.read_table(data.path, "graphs", filter=pc.field("frame_id").isin(sorted(ids)))
+        self.ground_truth = graphs_from_table(table, data.path / "graphs")
+        self.params = MetricParams(bev_range=data.bev_range)
         workers = min(config.data.num_workers, os.cpu_count() or 1)
         share = Subset(dataset, indices[rank::world_size].tolist())
         self.loader = DataLoader(share, batch_size=1, num_workers=workers, collate_fn=collate)

@@ -1,1 +1,2 @@
-"""Graph reconstruction (Path2Graph, Piece2Graph, Pixel2Graph), lane-graph metrics, speed and reports."""
+"""Lane graphs scored: reconstruction from each representation (graphs/), the metric (metric/), `cli score`
+(predictions.py reads, score.py scores) and `cli report` (report/)."""

@@ -1,4 +1,5 @@
-"""Result files of other codebases, scored as they are: MapTRv2 / LaneGAP and CGNet JSON -> our lane graphs.
+"""Result files of other codebases, MapTRv2 / LaneGAP and CGNet JSON: their formats and classes, their vectors
+read, their sample ids matched to our frames and converted to our lane graphs (for benchmark/predictions.py).
 
 Both codebases write `<work dir>/pts_bbox/nuscmap_results.json` (MapTRv2 on AV2: `av2map_results.json`)
 with mmcv.dump: {"meta": ..., "results": [{"sample_token": ..., "vectors": [{"pts": [[x, y(, z)], ...],
@@ -6,7 +7,7 @@ with mmcv.dump: {"meta": ..., "results": [{"sample_token": ..., "vectors": [{"pt
 docs/EXTERNAL.md is the user's page; what each step does and why:
 
 - A MapTRv2 centerline is a whole lane path (its ground truth is every start-to-end path), so its graph
-  is Path2Graph's (benchmark/path2graph.py, the parameters our LaneGAP's post-processing uses).
+  is Path2Graph's (benchmark/graphs/path2graph.py, the parameters our LaneGAP's post-processing uses).
 - A CGNet centerline is a piece whose linked endpoints its decoder already snapped to one coordinate, and
   CGNet builds its graph by merging exactly equal points: `merge_equal_points` does the same.
 - Frames: a nuScenes sample token is looked up in the prepared `frames` table (column sample_token); an
@@ -19,7 +20,6 @@ docs/EXTERNAL.md is the user's page; what each step does and why:
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from concurrent.futures import ProcessPoolExecutor
@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.metrics import identical_points
-from benchmark.path2graph import path2graph
+from benchmark.graphs.path2graph import path2graph
+from benchmark.metric.densify import identical_points
 from pipeline import io
 from pipeline.geometry import Range, clip_polylines
 from pipeline.lane_graph import LaneGraph
@@ -63,14 +63,6 @@ class Vectors:
     points: np.ndarray  # (P, 2) float64, x and y of every vector's points
     offsets: np.ndarray  # (V + 1,) vector v is points[offsets[v]:offsets[v + 1]]
     read: int  # vectors in the file, every class
-
-
-def sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as file:
-        for block in iter(lambda: file.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def refuse_pickle(path: Path) -> None:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 from rich.table import Table
 
 if TYPE_CHECKING:
-    from benchmark.report import Report
+    from benchmark.report.writer import Report
 
 MODES = ("directed", "undirected")
 METRICS = (("TOPO", "topo"), ("Junction TOPO", "junction_topo"))  # (shown name, result key)
@@ -121,7 +121,7 @@ def report_tables(result: Report) -> tuple[list[tuple[str, Table]], list[dict]]:
     """`cli report`'s main tables (each block's, and the paper's beside it) as (heading, table) pairs with
     the run, method, F1 and FPS columns (bold where report.md has it), and as plain dicts with every
     column for --json."""
-    from benchmark.report import main_table
+    from benchmark.report.measured_tables import main_table
 
     shown, tables = [], []
     for block, references in zip(result.blocks, result.references):

@@ -13,6 +13,7 @@ from baselines.config import TrainConfig
 from baselines.data import collate
 from baselines.models import resolve_config
 from baselines.train import setup
+from pipeline.manifest import PreparedData
 
 
 @pytest.mark.parametrize("model", ["lanegap", "stsu"])
@@ -22,7 +23,7 @@ def test_k_micro_batches_give_the_update_of_one_k_times_larger_batch(synth_prepa
         # the camera branch: the LiDAR pillars' max over tied points routes gradients by the frames' order
         config = resolve_config("tiny", modality="camera", model=model)
         config.train.batch_size, config.train.accumulate, config.train.threads = 6, accumulate, 1
-        s = setup(config, synth_prepared["av2"])
+        s = setup(config, PreparedData.open(synth_prepared["av2"]))
         assert s.loader.batch_size == 6 // accumulate and s.accumulate == accumulate
         samples = samples or [s.dataset[0], s.dataset[1]]
         trainers.append(s.trainer)

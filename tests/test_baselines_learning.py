@@ -21,11 +21,11 @@ import time
 
 import pytest
 
-from baselines.bench_train import prepare_synthetic
 from baselines.evaluate import evaluate
 from baselines.floor import contract_margins
 from baselines.models import resolve_config
 from baselines.train import train
+from tools.bench_train import prepare_synthetic
 
 SENSOR_GAP, LIDAR_SENSOR_GAP = 0.10, 0.05
 CONSTANT_MARGIN = 0.03

@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.attention import DeformableAttention, deformable_sample
-from baselines.blocks import bernstein_matrix
 from baselines.config import apply_overrides
-from baselines.data import Targets
-from baselines.encoder import SensorBatch, bev_cell_centres
-from baselines.matcher import focal_cost, hungarian_match, ordered_point_cost
+from baselines.layers.attention import DeformableAttention, deformable_sample
+from baselines.layers.bev_encoder import SensorBatch, bev_cell_centres
+from baselines.layers.blocks import bernstein_matrix
+from baselines.layers.matcher import focal_cost, hungarian_match, ordered_point_cost
+from baselines.layers.query_decoder import MARGIN
+from baselines.layers.resnet import build_resnet
+from baselines.layers.targets import Targets
 from baselines.models import load_config, resolve_config
 from baselines.models.lanegap import LaneGAP, LaneGAPLoss, select_paths
-from baselines.query_decoder import MARGIN
-from baselines.resnet import build_resnet
 from pipeline.camera import project_points
 
 torch.set_num_threads(1)

@@ -28,6 +28,7 @@ from pipeline import io
 from pipeline.camera import scaled_intrinsics
 from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
+from pipeline.manifest import PreparedData
 from pipeline.raster import Grid, rasterize
 
 
@@ -161,7 +162,7 @@ def test_scaled_intrinsics_keep_projections_consistent():
 def test_dataset_reads_sensors_and_targets(tmp_path):
     data = write_toy_dataset(tmp_path, frames=2)
     config = toy_config("fusion")
-    dataset = PreparedDataset(data, "train", config)
+    dataset = PreparedDataset(PreparedData.open(data), "train", config)
     sample = dataset[0]
     # 96 x 160 at 0.25 -> 24 x 40, the top 9 rows cut (image_crop_top 0.4) -> 15 x 40,
     # padded to 32 x 64
@@ -173,11 +174,11 @@ def test_dataset_reads_sensors_and_targets(tmp_path):
     points = sample.points
     assert points.shape[1] == 4 and np.all(np.abs(points[:, 0]) <= 15) and np.all(points[:, 3] <= 1)
     config.decoder.path_points = 10  # a different N is resampled from the full polylines
-    assert PreparedDataset(data, "train", config)[0].paths.shape == (2, 10, 2)
+    assert PreparedDataset(PreparedData.open(data), "train", config)[0].paths.shape == (2, 10, 2)
     batch = collate([dataset[0], dataset[1]])
     assert batch.sensors.images.shape == (2, 2, 3, 32, 64) and batch.sensors.points_mask.any(1).all()
     with pytest.raises(ValueError, match="no frames in split 'mini_train'; its splits are train"):
-        PreparedDataset(data, "mini_train", config)
+        PreparedDataset(PreparedData.open(data), "mini_train", config)
 
 
 def test_training_resumes_exactly(tmp_path):
@@ -259,12 +260,12 @@ def test_the_bev_grid_follows_the_dataset_range(tmp_path):
     (data / "manifest.json").write_text(json.dumps(manifest))
     config = toy_config(epochs=1)
     with pytest.raises(ValueError, match="cropped to x \\(-25.0, 25.0\\)"):
-        PreparedDataset(data, "train", config)
+        PreparedDataset(PreparedData.open(data), "train", config)
     train(config, data, tmp_path / "run")
     saved = load_config(tmp_path / "run" / "config.json")
     assert saved.encoder.x_range == (-25.0, 25.0) and saved.encoder.y_range == (-50.0, 50.0)
     assert (saved.encoder.bev_h, saved.encoder.bev_w) == (67, 33)  # the tiny preset's 1.5 m cells
-    assert len(PreparedDataset(data, "train", saved)) == 4
+    assert len(PreparedDataset(PreparedData.open(data), "train", saved)) == 4
     # a fresh run into a folder that holds one is refused before anything is written
     before = {f.name: f.read_bytes() for f in (tmp_path / "run").iterdir() if f.is_file()}
     with pytest.raises(ValueError, match="holds a run already: continue it with --resume"):
@@ -293,9 +294,9 @@ def test_a_training_step_and_post_processing_under_bf16_autocast(synth_prepared,
     config = resolve_config("tiny", model=model)
     # every path or piece kept; HDMapNet's threshold is per cell, and at 0 every cell would be lane
     config.decoder.score_threshold = 0.0 if model != "hdmapnet" else 0.3
-    use_dataset_range(config, synth_prepared["av2"], master=False)
+    use_dataset_range(config, PreparedData.open(synth_prepared["av2"]), master=False)
     built = build(config)
-    dataset = PreparedDataset(synth_prepared["av2"], "train", config, built.needs)
+    dataset = PreparedDataset(PreparedData.open(synth_prepared["av2"]), "train", config, built.needs)
     batch = collate([dataset[0], dataset[10]])
     with torch.autocast("cpu", dtype=torch.bfloat16):
         outputs = built.model(batch.sensors)

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.encoder import CameraEncoder, SensorBatch
+from baselines.layers.bev_encoder import CameraEncoder, SensorBatch
+from baselines.layers.query_decoder import QueryDecoder, to_unit
 from baselines.models import resolve_config
-from baselines.query_decoder import QueryDecoder, to_unit
 from pipeline.camera import project_points, scaled_intrinsics
 
 

@@ -1,4 +1,4 @@
-"""Bootstrap intervals over frames (benchmark/bootstrap.py): exact cases, golden values, the paired
+"""Bootstrap intervals over frames (benchmark/metric/bootstrap.py): exact cases, golden values, the paired
 difference, the per-frame counts behind them, and `cli score --bootstrap`."""
 
 from __future__ import annotations
@@ -12,8 +12,9 @@ import pytest
 from test_score import FORK, LANE
 from typer.testing import CliRunner
 
-from benchmark import bootstrap
-from benchmark.metrics import FRAME_COLUMNS, MetricParams, score_graphs
+from benchmark.metric import bootstrap
+from benchmark.metric.params import MetricParams
+from benchmark.metric.totals import FRAME_COLUMNS, score_graphs
 from benchmark.score import score_frames, score_pairs
 from cli import app
 from pipeline.io import SCHEMAS

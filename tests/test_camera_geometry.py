@@ -14,10 +14,11 @@ import torch
 from test_synth import painted_lines
 
 from baselines.data import PreparedDataset
-from baselines.encoder import above_ground_to_bev
+from baselines.layers.bev_encoder import above_ground_to_bev
 from baselines.models import resolve_config
 from pipeline.camera import project_points
 from pipeline.io import read_table
+from pipeline.manifest import PreparedData
 from pipeline.synth.world import build_world
 
 
@@ -69,7 +70,8 @@ def test_bev_points_project_onto_the_paint_synth_drew(synth_prepared, dataset, h
     centres = np.concatenate([lane.centerline(0.1)[:, :2] for lane in world.lanes.values()])
     config = resolve_config("tiny")
     config.encoder.modality = "camera"
-    data = PreparedDataset(synth_prepared[dataset], "train" if dataset == "av2" else "mini_train", config)
+    split = "train" if dataset == "av2" else "mini_train"
+    data = PreparedDataset(PreparedData.open(synth_prepared[dataset]), split, config)
 
     def bev(frame: dict, xy: np.ndarray) -> np.ndarray:
         points = world_to_bev(frame, xy)  # "pose": the ground's own height, through the pose
@@ -109,7 +111,7 @@ def test_the_synthetic_lidar_ground_is_on_the_recorded_plane(synth_prepared):
     it 20-30 m ahead and behind), as the real key frame's (tests/test_real_sensors.py)."""
     config = resolve_config("tiny")
     config.encoder.modality = "lidar"
-    data = PreparedDataset(synth_prepared["nuscenes"], "mini_train", config)
+    data = PreparedDataset(PreparedData.open(synth_prepared["nuscenes"]), "mini_train", config)
     for index in (0, len(data) // 2):
         frame, points = data.frames[index], data[index].points.astype(np.float64)
         (a, b), ground_z = frame["ground_slope"], frame["ground_z"]
@@ -135,7 +137,8 @@ def test_the_tiny_preset_crops_only_sky(synth_prepared, dataset):
     grid = np.column_stack([xs.ravel(), ys.ravel()])
     for config in (whole, cropped):
         config.encoder.modality = "camera"
-    data = [PreparedDataset(synth_prepared[dataset], split, config) for config in (whole, cropped)]
+    prepared = PreparedData.open(synth_prepared[dataset])
+    data = [PreparedDataset(prepared, split, config) for config in (whole, cropped)]
     for index in (0, len(data[0]) // 2):
         frame = data[0].frames[index]
         points = torch.from_numpy(on_default_pillars(frame, grid)).float()

@@ -1,4 +1,4 @@
-"""The decoder oracle (baselines/decoder_oracle.py): the ground-truth raster as a query model's BEV input,
+"""The decoder oracle (tools/decoder_oracle.py): the ground-truth raster as a query model's BEV input,
 pooled to the encoder's grid, and its training and scoring wired through the model's own record."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.decoder_oracle import oracle_bev, oracle_config, score_oracle, train_oracle
 from pipeline.io import decode_raster, read_table
+from tools.decoder_oracle import oracle_bev, oracle_config, score_oracle, train_oracle
 
 
 def test_oracle_bev_is_the_raster_pooled(synth_prepared):

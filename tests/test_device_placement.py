@@ -16,10 +16,11 @@ from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils._pytree import tree_flatten
 
 import baselines.models.lanegap
-import baselines.piecewise
+import baselines.models.piecewise
 import baselines.train
 from baselines.models import resolve_config
 from baselines.train import setup
+from pipeline.manifest import PreparedData
 
 
 class MixedDevices(TorchDispatchMode):
@@ -49,9 +50,9 @@ def test_a_training_step_reads_only_tensors_on_the_training_device(synth_prepare
     meta = torch.device("meta")
     monkeypatch.setattr(baselines.train, "setup_process", lambda config: (meta, 0, 1))
     monkeypatch.setattr(baselines.models.lanegap, "match_layers", identity_matching)
-    monkeypatch.setattr(baselines.piecewise, "match_layers", identity_matching)
+    monkeypatch.setattr(baselines.models.piecewise, "match_layers", identity_matching)
     config = resolve_config("tiny", modality="camera", model=model)
-    s = setup(config, synth_prepared["av2"])
+    s = setup(config, PreparedData.open(synth_prepared["av2"]))
     held = [*s.trainer.model.parameters(), *s.trainer.model.buffers(), *s.trainer.criterion.buffers()]
     assert held and {t.device for t in held} == {meta}
     batch = next(iter(s.loader))

@@ -27,8 +27,8 @@ from test_baselines_train import write_toy_dataset
 from typer.testing import CliRunner
 
 from baselines.checkpoint import load_checkpoint
-from baselines.train import logged_lines
-from benchmark.metrics import METRIC_VERSION, MetricParams
+from baselines.run_folder import logged_lines
+from benchmark.metric.params import METRIC_VERSION, MetricParams
 from benchmark.score import score_pairs
 from cli import app
 from pipeline.io import SCHEMA_VERSION
@@ -356,7 +356,7 @@ def prf(precision: float, recall: float, f1: float) -> dict:
 
 
 # Every digit of the metric on the frames above, per METRIC_VERSION. A change of the metric that moves
-# one of them must bump benchmark.metrics.METRIC_VERSION and add its values here.
+# one of them must bump benchmark.metric.params.METRIC_VERSION and add its values here.
 GOLDEN = {
     1: {
         "greedy": {

@@ -1,5 +1,5 @@
-"""The query decoders' fine BEV level (baselines/fine_bev.py): its shapes, its loss against the prepared
-raster, and that the decoder reads it."""
+"""The query decoders' fine BEV level (baselines/layers/fine_bev.py): its shapes, its loss against the
+prepared raster, and that the decoder reads it."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from baselines.data import Targets
-from baselines.fine_bev import FineBEV, fine_losses
-from baselines.query_decoder import QueryDecoder
-from baselines.raster_targets import pooled_targets
+from baselines.layers.fine_bev import FineBEV, fine_losses
+from baselines.layers.query_decoder import QueryDecoder
+from baselines.layers.raster_targets import pooled_targets
+from baselines.layers.targets import Targets
 from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
 from pipeline.raster import Grid, rasterize

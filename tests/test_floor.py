@@ -13,8 +13,9 @@ from typer.testing import CliRunner
 from baselines import floor as floor_module
 from baselines.evaluate import evaluate
 from baselines.floor import blind_floor, contract_margins, floor_margins, other_log_partners, spread
-from benchmark.metrics import MetricParams
-from benchmark.score import graphs_from_table, read_graph_table, score_pairs
+from benchmark.graph_table import graphs_from_table, read_graph_table
+from benchmark.metric.params import MetricParams
+from benchmark.score import score_pairs
 from cli import app
 from pipeline.lane_graph import LaneGraph
 

@@ -14,14 +14,15 @@ import torch
 from typer.testing import CliRunner
 
 from baselines.config import EncoderConfig
-from baselines.data import Batch, PreparedDataset, collate, is_synthetic
-from baselines.encoder import CameraEncoder
+from baselines.data import Batch, PreparedDataset, collate
 from baselines.evaluate import evaluate
+from baselines.layers.bev_encoder import CameraEncoder
+from baselines.layers.resnet import build_resnet
 from baselines.models import check_backbone_weights, load_config, resolve_config
-from baselines.resnet import build_resnet
 from baselines.train import train, use_dataset_schedule
 from benchmark.tables import eval_table
 from cli import app
+from pipeline.manifest import PreparedData, is_synthetic
 from tests.test_baselines_train import toy_config, write_toy_dataset
 
 
@@ -85,14 +86,16 @@ def test_the_paper_schedule_is_the_datasets(tmp_path, synth_prepared):
     for kind, epochs in (("av2", 24), ("nuscenes", 110)):
         config = resolve_config("paper", from_scratch=True)
         assert config.train.epochs == 0
-        assert use_dataset_schedule(config, synth_prepared[kind]) == f"the paper's {kind} schedule"
+        schedule = use_dataset_schedule(config, PreparedData.open(synth_prepared[kind]))
+        assert schedule == f"the paper's {kind} schedule"
         assert config.train.epochs == epochs
     explicit = resolve_config("paper", epochs=3, from_scratch=True)
-    assert use_dataset_schedule(explicit, synth_prepared["nuscenes"]) == "set (preset or --epochs)"
+    schedule = use_dataset_schedule(explicit, PreparedData.open(synth_prepared["nuscenes"]))
+    assert schedule == "set (preset or --epochs)"
     assert explicit.train.epochs == 3
     (tmp_path / "manifest.json").write_text(json.dumps({"root": "x"}))
     with pytest.raises(ValueError, match="no dataset kind .* give --epochs"):
-        use_dataset_schedule(resolve_config("paper", from_scratch=True), tmp_path)
+        use_dataset_schedule(resolve_config("paper", from_scratch=True), PreparedData.open(tmp_path))
 
 
 def test_real_data_gets_the_papers_image_scales_and_synthetic_data_its_own(
@@ -108,7 +111,7 @@ def test_real_data_gets_the_papers_image_scales_and_synthetic_data_its_own(
     gpu = resolve_config("gpu").data
     assert not gpu.cache_samples and gpu.num_workers > 0
     config = resolve_config("gpu", modality="camera")
-    dataset = PreparedDataset(synth_prepared["av2"], "train", config)
+    dataset = PreparedDataset(PreparedData.open(synth_prepared["av2"]), "train", config)
     assert dataset.synthetic
     sample = dataset[0]
     for camera, size in zip(
@@ -121,7 +124,8 @@ def test_a_batch_pins_every_tensor(monkeypatch, tmp_path):
     """DataLoader(pin_memory=True) calls Batch.pin_memory: every tensor of the sensors and targets."""
     pinned = []
     monkeypatch.setattr(torch.Tensor, "pin_memory", lambda self: pinned.append(self) or self)
-    dataset = PreparedDataset(write_toy_dataset(tmp_path, frames=2), "train", toy_config("fusion"))
+    toy = PreparedData.open(write_toy_dataset(tmp_path, frames=2))
+    dataset = PreparedDataset(toy, "train", toy_config("fusion"))
     batch = collate([dataset[0], dataset[1]])
     assert isinstance(batch.pin_memory(), Batch)
     tensors = [v for v in vars(batch.sensors).values() if isinstance(v, torch.Tensor)]
@@ -142,10 +146,11 @@ def test_run_json_says_the_schedule_and_the_accumulation(tmp_path):
 
 
 def test_the_gpu_check_gives_every_model_the_epochs_that_fit_all_four(synth_prepared, tmp_path):
-    from baselines.gpu_check import MODELS, equal_epochs
+    from tools.gpu_check import MODELS, equal_epochs
 
     # the synthetic av2 train split: its frames at the gpu preset's batch of 8 make its steps per epoch
-    frames = len(PreparedDataset(synth_prepared["av2"], "train", resolve_config("gpu", modality="lidar")))
+    config = resolve_config("gpu", modality="lidar")
+    frames = len(PreparedDataset(PreparedData.open(synth_prepared["av2"]), "train", config))
     steps = frames // 8
     assert steps >= 1
     bench = tmp_path / "bench_step.json"
@@ -165,7 +170,7 @@ def test_the_gpu_check_gives_every_model_the_epochs_that_fit_all_four(synth_prep
 
 
 def test_without_step_times_the_gpu_check_trains_the_short_fixed_schedule(tmp_path):
-    from baselines.gpu_check import FALLBACK_EPOCHS, schedule
+    from tools.gpu_check import FALLBACK_EPOCHS, schedule
 
     prepared = tmp_path / "not_read"  # neither the fixed schedule nor --epochs reads the data
     epochs, why = schedule(None, False, None, prepared, 110.0)
@@ -177,7 +182,7 @@ def test_without_step_times_the_gpu_check_trains_the_short_fixed_schedule(tmp_pa
 def test_the_gpu_check_archives_each_finished_run(tmp_path):
     import tarfile
 
-    from baselines.gpu_check import export_runs
+    from tools.gpu_check import export_runs
 
     runs, results = tmp_path / "runs", tmp_path / "out"
     results.mkdir()
@@ -198,7 +203,7 @@ def test_the_gpu_check_archives_each_finished_run(tmp_path):
 def test_a_failed_bench_step_command_shows_the_tail_of_its_output():
     import subprocess
 
-    from baselines.bench_step import failure_message
+    from tools.bench_step import failure_message
 
     stderr = "".join(f"line {i}\n" for i in range(40)) + "ValueError: no frames\n"
     done = subprocess.CompletedProcess(["cli"], 1, stdout="progress\n", stderr=stderr)

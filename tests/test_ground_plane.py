@@ -15,7 +15,13 @@ import pytest
 import torch
 
 from baselines.data import height_above_ground, read_image
-from baselines.encoder import CameraEncoder, PillarEncoder, SensorBatch, above_ground_to_bev, ground_height
+from baselines.layers.bev_encoder import (
+    CameraEncoder,
+    PillarEncoder,
+    SensorBatch,
+    above_ground_to_bev,
+    ground_height,
+)
 from baselines.models import resolve_config
 
 

@@ -9,8 +9,9 @@ import torch
 import torch.nn.functional as F
 
 from baselines.config import tiny
-from baselines.data import Targets
-from baselines.encoder import SensorBatch
+from baselines.layers.bev_encoder import SensorBatch
+from baselines.layers.raster_targets import direction_targets, pooled_targets
+from baselines.layers.targets import Targets
 from baselines.models import MODELS, resolve_config
 from baselines.models.hdmapnet import (
     HDMapNetConfig,
@@ -20,10 +21,10 @@ from baselines.models.hdmapnet import (
     paper_head,
     tiny_head,
 )
-from baselines.raster_targets import direction_targets, pooled_targets
-from benchmark.metrics import MetricParams
-from benchmark.roundtrip import rebuild, roundtrip
-from benchmark.score import default_range, graphs_from_table, score_pairs
+from benchmark.graph_table import default_range, graphs_from_table
+from benchmark.graphs.roundtrip import rebuild, roundtrip
+from benchmark.metric.params import MetricParams
+from benchmark.score import score_pairs
 from pipeline.geometry import Range
 from pipeline.io import decode_raster, read_table
 from pipeline.lane_graph import LaneGraph

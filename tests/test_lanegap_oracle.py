@@ -10,12 +10,14 @@ import torch
 
 from baselines.data import PreparedDataset
 from baselines.models import build, resolve_config
-from benchmark.metrics import MetricParams
-from benchmark.path2graph import path2graph
-from benchmark.roundtrip import roundtrip
-from benchmark.score import default_range, graphs_from_table, score_pairs
+from benchmark.graph_table import default_range, graphs_from_table
+from benchmark.graphs.path2graph import path2graph
+from benchmark.graphs.roundtrip import roundtrip
+from benchmark.metric.params import MetricParams
+from benchmark.score import score_pairs
 from pipeline.geometry import Range
 from pipeline.io import read_table
+from pipeline.manifest import PreparedData
 
 
 @pytest.mark.parametrize("dataset", ["nuscenes", "av2"])
@@ -28,7 +30,7 @@ def test_oracle_through_to_graphs_is_path2graph_of_the_prepared_paths(synth_prep
     n, queries = config.decoder.path_points, config.decoder.num_paths
     paths = {}
     for split in sorted(set(read_table(data, "frames", columns=["split"])["split"].to_pylist())):
-        paths |= PreparedDataset(data, split, config).paths
+        paths |= PreparedDataset(PreparedData.open(data), split, config).paths
     frame_ids = sorted(f for f in paths if 0 < len(paths[f]) <= queries)[::2]
     generator = torch.Generator().manual_seed(0)
     predicted, expected = {}, {}

@@ -23,6 +23,7 @@ from baselines import train as train_module
 from baselines.checkpoint import load_checkpoint
 from baselines.train import TrainingStopped, setup, train, validation_epochs
 from baselines.validate import VAL_METRICS, chosen_frames
+from pipeline.manifest import PreparedData
 
 STEPS_PER_EPOCH = 6  # test_faults' toy run: 12 frames, 2 per step, 3 epochs
 # every path kept, so that the scores compared are not all 0 (3 epochs score no path above 0.5)
@@ -194,7 +195,7 @@ def test_a_non_finite_step_changes_nothing_and_the_run_goes_on(tmp_path, monkeyp
     data = write_toy_dataset(tmp_path, frames=6)
     config = toy_config("lidar", epochs=2)
     nan_loss_at(monkeypatch, {2})
-    s = setup(config, data)
+    s = setup(config, PreparedData.open(data))
     trainer = s.trainer
     first, second, third = [group for group, _ in zip(s.batches(), range(3), strict=False)]
     assert trainer.train_step(first).applied

@@ -12,18 +12,10 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from benchmark.metrics import (
-    EPS,
-    FractionSum,
-    MetricParams,
-    TopoCounts,
-    candidate_pairs,
-    densify,
-    frame_counts,
-    identical_points,
-    near_pairs,
-    score_graphs,
-)
+from benchmark.metric.candidates import candidate_pairs, near_pairs
+from benchmark.metric.densify import densify, identical_points
+from benchmark.metric.params import EPS, MetricParams
+from benchmark.metric.totals import FractionSum, TopoCounts, frame_counts, score_graphs
 from pipeline.lane_graph import LaneGraph
 
 # ---------------------------------------------------------------------------------------------------
@@ -428,7 +420,7 @@ def window(g: LaneGraph, x_min, x_max, y_min, y_max) -> LaneGraph:
 def test_fast_equals_reference_on_real_av2_frames(prepared_av2):
     """Real ground truth against a noisy, thinned copy of itself, in a 20 x 25 m window (the
     reference needs tens of seconds per full frame), with the default parameters."""
-    from benchmark.score import graphs_from_table
+    from benchmark.graph_table import graphs_from_table
     from pipeline.io import read_table
 
     graphs = graphs_from_table(read_table(prepared_av2, "graphs"), prepared_av2)

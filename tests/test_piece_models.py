@@ -1,5 +1,5 @@
 """The piece-wise baselines, MapTR (baselines/models/maptr.py) and STSU (baselines/models/stsu.py), and
-what they share (baselines/piecewise.py): forward / backward, overfitting, the association head and its
+what they share (baselines/models/piecewise.py): forward / backward, overfitting, the association head and its
 targets, the Bezier fit, and the post-processing fed with the ground truth, which must score what
 `cli roundtrip --via piece` does."""
 
@@ -10,20 +10,23 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from baselines.blocks import bernstein_basis, bernstein_matrix
 from baselines.config import tiny
-from baselines.data import PreparedDataset, Targets, resample_polyline
-from baselines.encoder import SensorBatch
-from baselines.matcher import hungarian_match
+from baselines.data import PreparedDataset, resample_polyline
+from baselines.layers.bev_encoder import SensorBatch
+from baselines.layers.blocks import bernstein_basis, bernstein_matrix
+from baselines.layers.matcher import hungarian_match
+from baselines.layers.targets import Targets
 from baselines.models import build, maptr, resolve_config, stsu
-from baselines.piecewise import AssociationHead, association_loss, association_targets
-from benchmark.metrics import MetricParams
-from benchmark.piece2graph import piece2graph
-from benchmark.roundtrip import roundtrip
-from benchmark.score import default_range, graphs_from_table, score_pairs
+from baselines.models.piecewise import AssociationHead, association_loss, association_targets
+from benchmark.graph_table import default_range, graphs_from_table
+from benchmark.graphs.piece2graph import piece2graph
+from benchmark.graphs.roundtrip import roundtrip
+from benchmark.metric.params import MetricParams
+from benchmark.score import score_pairs
 from pipeline.geometry import Range
 from pipeline.io import read_table
 from pipeline.lane_graph import LaneGraph
+from pipeline.manifest import PreparedData
 from pipeline.raster import Grid, rasterize
 
 torch.set_num_threads(1)
@@ -209,7 +212,7 @@ def test_association_targets_of_matched_pairs_are_the_prepared_links(synth_prepa
     config = resolve_config("tiny", model="maptr")
     crop = Range.parse(default_range(data))
     config.encoder.x_range, config.encoder.y_range = (crop.x_min, crop.x_max), (crop.y_min, crop.y_max)
-    dataset = PreparedDataset(data, "train", config, frozenset({"pieces"}))
+    dataset = PreparedDataset(PreparedData.open(data), "train", config, frozenset({"pieces"}))
     generator = torch.Generator().manual_seed(0)
     checked = 0
     for frame_id, frame_pieces in dataset.pieces.items():
@@ -273,7 +276,7 @@ def prepared_pieces(data, config) -> tuple[dict, dict]:
     """{frame_id: (P, N, 2) unit pieces}, {frame_id: (L, 2) links} of every split, as the loader gives."""
     pieces, links = {}, {}
     for split in sorted(set(read_table(data, "frames", columns=["split"])["split"].to_pylist())):
-        dataset = PreparedDataset(data, split, config, frozenset({"pieces"}))
+        dataset = PreparedDataset(PreparedData.open(data), split, config, frozenset({"pieces"}))
         for frame_id, frame_pieces in dataset.pieces.items():
             pieces[frame_id] = torch.from_numpy(np.stack(frame_pieces))
             links[frame_id] = torch.tensor(dataset.piece_links[frame_id], dtype=torch.int64).reshape(-1, 2)

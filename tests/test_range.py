@@ -12,6 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from cli import app
+from pipeline.manifest import PreparedData
 
 
 def invoke(*args) -> str:
@@ -44,7 +45,7 @@ def test_50x100_range_from_prepare_to_score(tmp_path_factory, model):
     assert (config.encoder.bev_h, config.encoder.bev_w) == (67, 33)
 
     needs = build(config).needs
-    sample = PreparedDataset(data, "train", config, needs)[0]
+    sample = PreparedDataset(PreparedData.open(data), "train", config, needs)[0]
     assert sample.seg.shape == (67, 33)
     if "paths" in needs:  # unit coordinates of the 50 x 100 map
         assert len(sample.paths) and sample.paths.min() >= 0.0 and sample.paths.max() <= 1.0

@@ -1,4 +1,4 @@
-"""The query models' lane head (baselines/raster_head.py): HDMapNet's head under its own names, and the
+"""The query models' lane head (baselines/layers/raster_head.py): HDMapNet's head under its own names, and the
 snapping of regressed points onto the lane centres of a lane-probability raster."""
 
 from __future__ import annotations
@@ -8,10 +8,11 @@ import pytest
 import torch
 
 from baselines.data import PreparedDataset, collate
+from baselines.layers.raster_head import lane_head_losses, raster_shape, snap_polylines
 from baselines.models import build, resolve_config
-from baselines.raster_head import lane_head_losses, raster_shape, snap_polylines
 from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
+from pipeline.manifest import PreparedData
 from pipeline.raster import Grid, rasterize
 
 
@@ -91,7 +92,8 @@ def test_the_prepared_raster_moves_perturbed_paths_back_onto_their_lanes(synth_p
     """The ground-truth paths of synth frames, shifted 0.6 m sideways, snap back onto the lanes of the
     prepared raster pooled to the lane head's cells."""
     config = resolve_config("tiny", modality="lidar", model="lanegap")
-    data = PreparedDataset(synth_prepared["av2"], "train", config, frozenset({"paths", "raster"}))
+    needs = frozenset({"paths", "raster"})
+    data = PreparedDataset(PreparedData.open(synth_prepared["av2"]), "train", config, needs)
     rows, cols = raster_shape(config.encoder, 0.3)
     errors_before, errors_after = [], []
     for index in range(0, len(data), 9):
@@ -122,7 +124,7 @@ def test_query_models_train_their_lane_head_and_snap_with_it(synth_prepared, mod
     config = resolve_config("tiny", modality="lidar", model=model)
     built = build(config)
     assert "raster" in built.needs
-    data = PreparedDataset(synth_prepared["av2"], "train", config, built.needs)
+    data = PreparedDataset(PreparedData.open(synth_prepared["av2"]), "train", config, built.needs)
     batch = collate([data[0], data[1]])
     outputs = built.model(batch.sensors)
     rows, cols = raster_shape(config.encoder, config.decoder.lane_head_resolution)

@@ -36,6 +36,7 @@ from baselines.data import PreparedDataset
 from baselines.models import resolve_config
 from pipeline.camera import project_points
 from pipeline.io import read_table
+from pipeline.manifest import PreparedData
 
 PRESETS = ("tiny", "paper", "gpu")
 GROUND_RING_M = (2.0, 6.0)  # horizontal distance from the BEV origin of the ground returns "under the ego"
@@ -46,7 +47,7 @@ def load_frame(prepared: Path, split: str, preset: str):
     """(frame row, Sample, Config) of the prepared dataset's one frame, read by the loader under a preset
     (fusion: its images and its LiDAR)."""
     config = resolve_config(preset, modality="fusion")
-    data = PreparedDataset(prepared, split, config)
+    data = PreparedDataset(PreparedData.open(prepared), split, config)
     assert len(data) == 1
     return data.frames[0], data[0], config
 
@@ -288,7 +289,7 @@ def test_nuscenes_ground_plane_is_on_the_lidar_road_and_so_are_the_sampling_poin
     per camera 0.7-2.1 px, at most 3.1) of the road under them: the plane moved by its band's measured
     offset. On the flat z = ground_z they were 11-19 px off (median per camera)."""
     from baselines.data import collate
-    from baselines.encoder import CameraEncoder, above_ground_to_bev
+    from baselines.layers.bev_encoder import CameraEncoder, above_ground_to_bev
 
     frame, sample, _ = load_frame(real_nuscenes_prepared, "mini_train", "paper")
     raw = raw_pcd(real_nuscenes_keyframe, frame)[:, :3].astype(np.float64)
@@ -483,8 +484,8 @@ def nuscenes_picture(root: Path, prepared: Path, out: Path) -> dict:
     LiDAR return of the sweep more than 1 m in front of a camera, by depth, and the tiny preset's BEV cell
     centres on the ground plane (its camera encoder's sampling points, `camera_heights` (0,) above it), all
     projected by the encoder's `project_points`. Returns counts per camera."""
-    from baselines.encoder import above_ground_to_bev, bev_cell_centres
-    from benchmark.figures import camera_overlays, save_png_palette
+    from baselines.layers.bev_encoder import above_ground_to_bev, bev_cell_centres
+    from benchmark.report.figures import camera_overlays, save_png_palette
 
     frame, sample, _ = load_frame(prepared, "mini_train", "paper")
     raw = raw_pcd(root, frame)[:, :3]
@@ -537,7 +538,7 @@ def av2_picture(root: Path, prepared: Path, out: Path) -> dict:
     graph that `cli prepare` made of it. Returns what it drew."""
     from av2.map.map_api import ArgoverseStaticMap
 
-    from benchmark.figures import save_png_palette, sweep_over_map
+    from benchmark.report.figures import save_png_palette, sweep_over_map
     from pipeline.geometry import Range, pose_matrix
     from pipeline.lane_graph import LaneGraph
 

@@ -24,17 +24,13 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from benchmark import bootstrap
-from benchmark.reference import load_reference
-from benchmark.report import (
-    JUNCTION_BUCKETS,
-    REFERENCE_NOTE,
-    SYNTHETIC_NOTE,
-    UNKNOWN_ORIGIN_NOTE,
-    junction_count,
-    write_report,
-)
-from benchmark.score import graphs_from_table, read_graph_table, score_frames, score_pairs
+from benchmark.graph_table import graphs_from_table, read_graph_table
+from benchmark.metric import bootstrap
+from benchmark.report.measured_tables import JUNCTION_BUCKETS, junction_count
+from benchmark.report.paper_tables import REFERENCE_NOTE, SYNTHETIC_NOTE, UNKNOWN_ORIGIN_NOTE
+from benchmark.report.reference import load_reference
+from benchmark.report.writer import write_report
+from benchmark.score import score_frames, score_pairs
 from cli import app
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
@@ -57,8 +53,8 @@ def made(tmp_path_factory) -> dict:
     from baselines.evaluate import evaluate
     from baselines.models import resolve_config
     from baselines.train import train
-    from benchmark.metrics import MetricParams
-    from benchmark.roundtrip import roundtrip
+    from benchmark.graphs.roundtrip import roundtrip
+    from benchmark.metric.params import MetricParams
     from pipeline.prepare import prepare
     from pipeline.synth import synth
     from pipeline.targets import TargetOptions
@@ -235,8 +231,8 @@ def test_miou_ablation_and_roundtrip_tables(made):
 def test_a_roundtrip_file_that_names_its_thresholds_params_is_read(tmp_path):
     """`cli roundtrip` and `cli score` name the thresholds `metric_params`, as metrics.json does (where
     `params` is the parameter count); a round trip written when they were `params` gives the same table."""
-    from benchmark.metrics import score_graphs
-    from benchmark.report import load_roundtrips, roundtrip_tables
+    from benchmark.metric.totals import score_graphs
+    from benchmark.report.measured_tables import load_roundtrips, roundtrip_tables
 
     lane = LaneGraph(np.zeros(2), np.array([0.0, 5.0]), np.array([0], np.int32), np.array([1], np.int32))
     result = {**score_graphs([(lane, lane)]), "via": "path", "data": str(tmp_path / "prepared")}
@@ -314,7 +310,7 @@ def test_each_f1_has_its_interval_from_the_runs_frame_counts(made):
 
 def rescored(run: Path, av2: Path, change) -> None:
     """Rewrite a run folder's predictions with change(frame_id, graph), and its scores and counts."""
-    from benchmark.metrics import MetricParams
+    from benchmark.metric.params import MetricParams
 
     gt = graphs_from_table(read_graph_table(av2), av2)
     predicted = graphs_from_table(read_graph_table(run / "predictions.parquet"), run)
@@ -480,7 +476,7 @@ def test_runs_with_other_metric_parameters_are_refused(made, tmp_path):
 
 
 def test_viz_draws_the_frame_of_lowest_f1(made, tmp_path):
-    from benchmark.metrics import MetricParams
+    from benchmark.metric.params import MetricParams
 
     av2, pred = made["av2"], made["runs"] / "path_oracle" / "predictions.parquet"
     gt = graphs_from_table(read_graph_table(av2), av2)
@@ -533,7 +529,8 @@ def validated_copy(made, folder: Path, seed: int) -> list[dict]:
 
 
 def test_validation_curves_with_the_best_and_a_cut_last_line(made, tmp_path):
-    from benchmark.report import load_run, validation_curve
+    from benchmark.report.runs import load_run
+    from benchmark.report.sections import validation_curve
 
     runs = tmp_path / "runs"
     records = validated_copy(made, runs / "validated", seed=0)
@@ -583,7 +580,8 @@ def test_validation_curves_with_the_best_and_a_cut_last_line(made, tmp_path):
 
 
 def test_a_skipped_non_finite_step_is_left_out_of_the_loss_curve(made, tmp_path):
-    from benchmark.report import load_run, loss_points
+    from benchmark.report.runs import load_run
+    from benchmark.report.sections import loss_points
 
     run = tmp_path / "runs" / "guarded"
     shutil.copytree(made["runs"] / "lanegap_lidar", run)

@@ -23,10 +23,14 @@ import pyarrow.parquet as pq
 import pytest
 from test_report import first_table, number, section
 
-from benchmark import bootstrap
-from benchmark.metrics import MetricParams
-from benchmark.report import find_runs, load_run, paired_difference, settings_table, write_report
-from benchmark.score import graphs_from_table, read_graph_table, score_frames
+from benchmark.graph_table import graphs_from_table, read_graph_table
+from benchmark.metric import bootstrap
+from benchmark.metric.params import MetricParams
+from benchmark.report.measured_tables import settings_table
+from benchmark.report.runs import find_runs, load_run
+from benchmark.report.summary import paired_difference
+from benchmark.report.writer import write_report
+from benchmark.score import score_frames
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
 
@@ -257,7 +261,8 @@ def test_cgnet_name_and_a_non_external_run_with_null_sizes_is_refused(made, tmp_
 
 
 def test_a_run_folder_written_by_cli_score_is_read(made, tmp_path):
-    from benchmark.report import external_notes, group_blocks
+    from benchmark.report.measured_tables import external_notes
+    from benchmark.report.runs import group_blocks
     from benchmark.score import score
 
     pred = tmp_path / "theirs.parquet"

@@ -1,4 +1,4 @@
-"""The paper's published numbers (benchmark/paper_reference.toml): checked against the paper's LaTeX
+"""The paper's published numbers (benchmark/report/paper_reference.toml): checked against the paper's LaTeX
 when ../shared/paper is present, and read back from the reference tables the report renders."""
 
 from __future__ import annotations
@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.reference import REFERENCE_FILE, SCORE_KEYS, load_reference
-from benchmark.report import Block, is_synthetic, main_references, reference_table
+from benchmark.report.paper_tables import main_references, reference_table
+from benchmark.report.reference import REFERENCE_FILE, SCORE_KEYS, load_reference
+from benchmark.report.runs import Block, is_synthetic
 
 LATEX = Path(__file__).resolve().parents[1].parent / "shared" / "paper" / "lanegap.tex"
 STAT_INDEX = {"P": 0, "R": 1, "F1": 2}

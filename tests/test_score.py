@@ -10,8 +10,10 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.metrics import MetricParams, score_graphs
-from benchmark.score import GraphTableError, graphs_from_table, read_graph_table, score
+from benchmark.graph_table import GraphTableError, graphs_from_table, read_graph_table
+from benchmark.metric.params import MetricParams
+from benchmark.metric.totals import score_graphs
+from benchmark.score import score
 from cli import app
 from pipeline.io import SCHEMAS, read_table
 from pipeline.lane_graph import LaneGraph

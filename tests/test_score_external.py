@@ -15,8 +15,9 @@ import pytest
 from typer.testing import CliRunner
 
 from benchmark.external import merge_equal_points
-from benchmark.metrics import MetricParams
-from benchmark.score import graphs_from_table, read_graph_table, score, score_pairs
+from benchmark.graph_table import graphs_from_table, read_graph_table
+from benchmark.metric.params import MetricParams
+from benchmark.score import score, score_pairs
 from cli import app
 from pipeline.io import SCHEMAS, read_table
 from pipeline.lane_graph import LaneGraph

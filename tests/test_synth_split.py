@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from baselines.floor import search_constant_prior
-from benchmark.metrics import MetricParams
-from benchmark.score import default_range, graphs_from_table, read_graph_table, score_pairs
+from benchmark.graph_table import default_range, graphs_from_table, read_graph_table
+from benchmark.metric.params import MetricParams
+from benchmark.score import score_pairs
 from pipeline.io import read_table
 
 PRIOR_CEILING = 0.35  # directed TOPO F1 of the best constant graph on the validation frames

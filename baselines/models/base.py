@@ -13,7 +13,7 @@ from torch import nn
 @dataclass
 class Built:
     model: nn.Module  # SensorBatch -> dict of output tensors
-    loss: nn.Module  # (outputs, data.Targets) -> dict of losses; "loss" is the total, the rest logged
+    loss: nn.Module  # (outputs, Targets) -> dict of losses; "loss" is the total, the rest logged
     to_graphs: Callable  # outputs -> one LaneGraph (metres, BEV frame) per frame of the batch
     needs: frozenset[str]  # targets it trains on: "paths", "pieces" (+ links), "raster" (mask + direction)
     modeling: str  # the paper's family: "pixel", "piece" or "path"
@@ -35,9 +35,9 @@ def preset_head(model: str, heads: dict, preset: str):
 
 @dataclass
 class QueryHeadConfig:
-    """The hierarchical-query decoder (baselines/query_decoder.py) and its set loss, as LaneGAP's, MapTR's
-    and STSU's heads share them; each adds its own instance count (`num_paths`, `num_pieces`) and the rest
-    of its modelling."""
+    """The hierarchical-query decoder (baselines/layers/query_decoder.py) and its set loss, as LaneGAP's,
+    MapTR's and STSU's heads share them; each adds its own instance count (`num_paths`,
+    `num_pieces`) and the rest of its modelling."""
 
     layers: int = 6
     heads: int = 8
@@ -45,10 +45,10 @@ class QueryHeadConfig:
     deform_points: int = 4  # samples per head (per anchor) in the deformable cross-attention
     dropout: float = 0.1
     # 0: off; s: the decoder also reads the BEV features lifted to cells s times smaller, which a dense
-    # lane and direction loss on the prepared rasters trains (baselines/fine_bev.py; the tiny presets')
+    # lane and direction loss on the prepared rasters trains (baselines/layers/fine_bev.py; the tiny presets')
     fine_scale: float = 0.0
     fine_weight: float = 1.0
-    # 0: off; w: HDMapNet's head of width w on the BEV (baselines/raster_head.py; the tiny presets'),
+    # 0: off; w: HDMapNet's head of width w on the BEV (baselines/layers/raster_head.py; the tiny presets'),
     # trained on the prepared rasters, whose lane probability moves the regressed points up to
     # snap_radius m across their polyline onto their lane's centre
     lane_head_width: int = 0
@@ -78,7 +78,7 @@ class PieceHeadConfig(QueryHeadConfig):
     max_link_pos_weight: float = 50.0  # the association loss's positive weight is clamped to this
     link_threshold: float = 0.5  # association probability above which i -> j is a link
     # 0: off (the papers'); r: a piece with `duplicate_overlap` of its points within r metres of a
-    # higher-scoring piece is dropped before Piece2Graph (benchmark/piece2graph.py suppress_duplicates)
+    # higher-scoring piece is dropped before Piece2Graph (benchmark/graphs/piece2graph.py suppress_duplicates)
     duplicate_radius: float = 0.0
     duplicate_overlap: float = 0.5
     # MapTRv2's one-to-many matching (0 pieces: off): this many extra queries, in training only, matched

@@ -25,12 +25,12 @@ import torch
 from torch import nn
 
 from baselines.config import Config
-from baselines.data import Targets
-from baselines.encoder import BEVEncoder, SensorBatch
+from baselines.layers.bev_encoder import BEVEncoder, SensorBatch
+from baselines.layers.raster_head import RasterHead, raster_shape
+from baselines.layers.raster_targets import raster_losses
+from baselines.layers.targets import Targets
 from baselines.models.base import Built, preset_head
-from baselines.raster_head import RasterHead, raster_shape
-from baselines.raster_targets import raster_losses
-from benchmark.pixel2graph import pixel2graph
+from benchmark.graphs.pixel2graph import pixel2graph
 from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
 from pipeline.raster import Grid
@@ -64,9 +64,9 @@ def paper_head() -> HDMapNetConfig:
 
 def tiny_head() -> HDMapNetConfig:
     """1,386,496 parameters with the tiny encoder (camera): width 18, LaneGAP's size since the query
-    models carry a width-12 head of this kind (baselines/raster_head.py). Output cells of 0.3 m (200 x 100
-    for 30 x 60 m): a quarter of the cost of the prepared rasters' 0.15 m, for a small loss in the ground
-    truth's round trip through Pixel2Graph (docs/EXPERIMENTS.md)."""
+    models carry a width-12 head of this kind (baselines/layers/raster_head.py). Output cells of 0.3 m
+    (200 x 100 for 30 x 60 m): a quarter of the cost of the prepared rasters' 0.15 m, for a small loss in the
+    ground truth's round trip through Pixel2Graph (docs/EXPERIMENTS.md)."""
     return HDMapNetConfig(width=18, resolution=0.3)
 
 
@@ -77,7 +77,7 @@ def head(preset: str) -> HDMapNetConfig:
 
 class HDMapNet(RasterHead):
     """Sensors -> "seg": lane logits (B, 2, H, W) and "direction": (cos, sin) (B, 2, H, W), on the
-    raster grid (H x W cells of config.decoder.resolution): BevEncode (baselines/raster_head.py) on the
+    raster grid (H x W cells of config.decoder.resolution): BevEncode (baselines/layers/raster_head.py) on the
     shared encoder."""
 
     def __init__(self, config: Config):

@@ -18,16 +18,22 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from baselines.blocks import count, mean_over_processes, sigmoid_focal_loss
 from baselines.config import Config
-from baselines.data import Targets
-from baselines.encoder import BEVEncoder, SensorBatch
-from baselines.fine_bev import fine_losses
-from baselines.matcher import match_layers
+from baselines.layers.bev_encoder import BEVEncoder, SensorBatch
+from baselines.layers.blocks import count, mean_over_processes, sigmoid_focal_loss
+from baselines.layers.fine_bev import fine_losses
+from baselines.layers.matcher import match_layers
+from baselines.layers.query_decoder import QueryDecoder
+from baselines.layers.raster_head import (
+    lane_head,
+    lane_head_losses,
+    lane_outputs,
+    lane_probability,
+    snap_polylines,
+)
+from baselines.layers.targets import Targets
 from baselines.models.base import Built, QueryHeadConfig, preset_head
-from baselines.query_decoder import QueryDecoder
-from baselines.raster_head import lane_head, lane_head_losses, lane_outputs, lane_probability, snap_polylines
-from benchmark.path2graph import path2graph
+from benchmark.graphs.path2graph import path2graph
 from pipeline.lane_graph import LaneGraph
 
 

@@ -1,5 +1,5 @@
 """MapTR (Liao et al.), the piece-wise polyline baseline: its head config; the model, loss and
-post-processing are the piece-wise ones (baselines/piecewise.py), which `build()` returns together.
+post-processing are the piece-wise ones (baselines/models/piecewise.py), which `build()` returns together.
 
 The model: the shared BEV encoder and the hierarchical-query decoder (the one LaneGAP uses) regressing
 every piece as 20 ordered points, one ordering only since pieces are directed, plus STSU's association
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from baselines.config import Config
 from baselines.models.base import Built, PieceHeadConfig, preset_head
-from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
+from baselines.models.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """STSU (Can et al., "Structured Bird's-Eye-View Traffic Scene Understanding"), the piece-wise Bezier
 baseline: its head config, the Bezier fit of its targets and its loss; the model and the
-post-processing are the piece-wise ones (baselines/piecewise.py), which `build()` returns together.
+post-processing are the piece-wise ones (baselines/models/piecewise.py), which `build()` returns together.
 
 The model: the shared BEV encoder and the shared query decoder in Bezier mode (4 control points per
 piece through 6 layers that refine them, the same deformable attention over the BEV as LaneGAP's, so
@@ -17,10 +17,10 @@ from dataclasses import dataclass
 
 import torch
 
-from baselines.blocks import bernstein_basis, bernstein_matrix, combine_points
 from baselines.config import Config
+from baselines.layers.blocks import bernstein_basis, bernstein_matrix, combine_points
 from baselines.models.base import Built, PieceHeadConfig, preset_head
-from baselines.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
+from baselines.models.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
 
 
 @dataclass

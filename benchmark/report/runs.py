@@ -1,0 +1,324 @@
+"""The runs `cli report` reads: run folders (metrics.json, config.json, run.json, log.jsonl, val.jsonl and
+frame_counts.parquet) as typed rows (Run), grouped in blocks of one prepared dataset and split (Block).
+
+A missing or unusable file becomes a reason why a run has no scores, never an exception; a run's per-frame
+counts are checked against its metrics.json before they give intervals. Paths are shown relative to the
+working directory (`shown`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.metric import bootstrap
+
+METHOD_NAMES = {"lanegap": "LaneGAP", "maptr": "MapTR", "stsu": "STSU", "hdmapnet": "HDMapNet"}
+RUN_FILES = ("metrics.json", "config.json", "run.json", "checkpoint.pt", "log.jsonl", "predictions.parquet")
+REQUIRED = ("frames", "directed", "undirected", "metric_params", "params", "fps_net", "fps", "split", "data")
+MEASURED = ("params", "fps_net", "fps")  # null only in an external run's metrics.json (not measured here)
+# an external run (`cli score --out RUN_DIR`: another codebase's result file, metrics.json's "external")
+EXTERNAL_NAMES = {"maptrv2": "MapTRv2 / LaneGAP JSON", "cgnet": "CGNet JSON", "graph": "graph table"}
+VALIDATION_FILE = "val.jsonl"
+
+
+@dataclass
+class Run:
+    path: Path
+    name: str
+    metrics: dict | None  # metrics.json; None when the run has no usable one (see reasons)
+    config: dict | None  # config.json (else the copy in metrics.json)
+    data: Path | None  # the prepared dataset it was scored on (or trained on), when found
+    dataset: str  # the data manifest's dataset name; "unknown" when the data is not found
+    split: str | None
+    world_size: int | None
+    log: list[dict] = field(default_factory=list)
+    reasons: list[str] = field(default_factory=list)  # why it has no scores
+    frame_ids: list[str] = field(default_factory=list)  # sorted; the rows of counts
+    counts: np.ndarray | None = None  # per-frame metric sums (bootstrap.FRAME_COUNTS); None: see no_counts
+    no_counts: str = ""  # why a scored run has no per-frame counts (so no intervals)
+    intervals: dict | None = None  # {mode: {metric: [low, high]}} of each F1, drawn for its block
+    info: dict = field(default_factory=dict)  # run.json: processes, accumulation, schedule
+    validation: list[dict] | None = None  # val.jsonl's records (validation during training); None: no file
+    cut: list[str] = field(default_factory=list)  # the files whose cut-short last line was left out
+
+    @property
+    def scored(self) -> bool:
+        return self.metrics is not None
+
+    @property
+    def external(self) -> dict | None:
+        """metrics.json's "external": what `cli score` read of another codebase's result file; None for
+        a run trained here."""
+        return (self.metrics or {}).get("external")
+
+    @property
+    def method(self) -> str:
+        if self.external is not None:
+            fmt = self.external.get("format")
+            return f"{EXTERNAL_NAMES.get(fmt, fmt)} (external)"
+        model = (self.metrics or {}).get("model") or (self.config or {}).get("model") or "?"
+        return METHOD_NAMES.get(model, model)
+
+    @property
+    def modality(self) -> str:
+        if self.external is not None:
+            return "unknown"
+        return (self.config or {}).get("encoder", {}).get("modality", "-")
+
+    def score(self, mode: str, metric: str, stat: str = "f1") -> float:
+        return float(self.metrics[mode][metric][stat])
+
+    def f1_cell(self, mode: str, metric: str) -> str:
+        """The F1 in %, then its 95 % interval when drawn."""
+        cell = percent(self.score(mode, metric))
+        if self.intervals:
+            low, high = self.intervals[mode][metric]
+            cell += f" [{percent(low)}, {percent(high)}]"
+        return cell
+
+    def f1_text(self, mode: str, metric: str) -> str:
+        """The F1 in words: "40.7 % (95 % interval 22.5-55.1 %)"."""
+        text = f"{percent(self.score(mode, metric))} %"
+        if self.intervals:
+            low, high = self.intervals[mode][metric]
+            text += f" (95 % interval {percent(low)}-{percent(high)} %)"
+        return text
+
+    def floor_f1(self, mode: str, metric: str) -> float | None:
+        f1 = ((self.metrics or {}).get("floor") or {}).get("f1")
+        return None if not f1 else f1[mode][metric]
+
+
+@dataclass
+class Block:
+    """The runs of one prepared dataset and split: one main table."""
+
+    dataset: str
+    data: Path | None
+    split: str | None
+    runs: list[Run]
+    manifest: dict = field(default_factory=dict)  # the data's manifest.json ({} when not found)
+    synthetic: bool | None = None  # made by `cli synth`; None: its raw data is gone, so unknown
+
+    @property
+    def name(self) -> str:
+        """The dataset's name as the report writes it: synthetic data says so."""
+        return f"{self.dataset} (synthetic, `cli synth`)" if self.synthetic else self.dataset
+
+    @property
+    def parameters(self) -> dict:
+        return self.manifest.get("parameters", {})
+
+    @property
+    def scored(self) -> list[Run]:
+        return [run for run in self.runs if run.scored]
+
+    @property
+    def metric_params(self) -> dict | None:
+        return self.scored[0].metrics["metric_params"] if self.scored else None
+
+    @property
+    def title(self) -> str:
+        frames = ""
+        if self.scored:
+            ours = [run for run in self.scored if run.external is None] or self.scored
+            frames = f", {ours[0].metrics['frames']} frames"
+            fewer = [run for run in self.scored if run.metrics["frames"] != ours[0].metrics["frames"]]
+            if fewer:
+                frames += " (" + "; ".join(f"{run.name}: {run.metrics['frames']}" for run in fewer) + ")"
+        data = shown(self.data) if self.data else "data not found"
+        return f"{self.name}: `{data}`, {self.split or '?'} split{frames}"
+
+
+def shown(path: Path | str) -> str:
+    """A path as the report writes it: relative to the working directory, so that a report made in a
+    temporary folder (or moved) names no absolute path."""
+    return os.path.relpath(Path(path).absolute())
+
+
+def read_json(path: Path) -> dict:
+    try:
+        return json.loads(Path(path).read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from error
+
+
+def read_jsonl(path: Path) -> tuple[list[dict], bool]:
+    """The records of a JSON-lines file that training appends to (log.jsonl, val.jsonl), and whether its
+    last line was cut short: a kill mid-write leaves a line without its newline, left out unparsed. NaN
+    and Infinity (Python's json writes a non-finite loss so) read back as floats."""
+    *complete, tail = Path(path).read_text(errors="replace").split("\n")
+    records = []
+    for number, line in enumerate(complete, 1):
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as error:
+            raise ValueError(f"{shown(path)}, line {number}: not valid JSON ({error})") from error
+    return records, bool(tail.strip())
+
+
+def find_runs(paths: list[Path]) -> list[Path]:
+    """Run folders: each path is a run folder (it holds config.json, metrics.json, ...) or a folder whose
+    every sub-folder is taken as a run (an empty one then appears as a run without scores)."""
+    found: list[Path] = []
+    for path in map(Path, paths):
+        if not path.is_dir():
+            raise FileNotFoundError(f"{path}: no such run folder")
+        if any((path / name).exists() for name in RUN_FILES):
+            found.append(path)
+            continue
+        inner = sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
+        if not inner:
+            raise ValueError(
+                f"{path}: neither a run folder (no {', '.join(RUN_FILES[:3])}) nor a folder of runs"
+            )
+        found += inner
+    unique = {p.resolve(): p for p in found}
+    return list(unique.values())
+
+
+def find_data(candidates: list) -> tuple[Path | None, str]:
+    """(data folder, manifest dataset name) of the first candidate folder holding a manifest.json."""
+    for candidate in candidates:
+        if candidate and (Path(candidate) / "manifest.json").is_file():
+            manifest = read_json(Path(candidate) / "manifest.json")
+            return Path(candidate).resolve(), str(manifest.get("dataset", "unknown"))
+    return None, "unknown"
+
+
+def is_synthetic(manifest: dict) -> bool | None:
+    """Whether a prepared dataset was made from `cli synth` output: its manifest names the raw root, and
+    synth writes its marker (synth.json) at most two folders above the roots it writes. None when the raw
+    root no longer exists (then nobody can tell)."""
+    from pipeline.synth import MARKER
+
+    if not manifest.get("root") or not Path(manifest["root"]).exists():
+        return None
+    root = Path(manifest["root"]).resolve()
+    for folder in (root, *list(root.parents)[:2]):
+        if (folder / MARKER).is_file():
+            try:
+                marker = json.loads((folder / MARKER).read_text())
+            except json.JSONDecodeError:
+                continue
+            roots = [marker.get(key) for key in ("av2_root", "nuscenes_root")]
+            if any(r and (folder / r).resolve() == root for r in roots):
+                return True
+    return False
+
+
+def load_run(path: Path, name: str) -> Run:
+    """A run folder as found: a missing or unusable file becomes a reason, never an exception."""
+    reasons, metrics, config, info = [], None, None, {}
+    for file_name in ("config.json", "run.json", "metrics.json"):
+        file = path / file_name
+        if not file.is_file():
+            continue
+        try:
+            value = read_json(file)
+        except ValueError as error:
+            reasons.append(str(error).replace(str(file), shown(file), 1))
+            continue
+        config, info, metrics = (
+            (value, info, metrics) if file_name == "config.json"
+            else (config, value, metrics) if file_name == "run.json"
+            else (config, info, value)
+        )  # fmt: skip
+    external = isinstance(metrics, dict) and metrics.get("external") is not None
+    if not external and not (path / "checkpoint.pt").is_file():  # an external run was never trained here
+        reasons.append("no checkpoint.pt (training did not finish)")
+    if metrics is None and not (path / "metrics.json").is_file():
+        reasons.append(f"no metrics.json (not evaluated: `cli eval --run {shown(path)}`)")
+    elif metrics is not None:
+        missing = [key for key in REQUIRED if key not in metrics]
+        missing += [key for key in MEASURED if key in metrics and metrics[key] is None and not external]
+        if missing:
+            reasons.append(f"{shown(path / 'metrics.json')} lacks {', '.join(missing)} (re-run `cli eval`)")
+            metrics = None
+    config = config or (metrics or {}).get("config")
+    data, dataset = find_data([(metrics or {}).get("data"), info.get("data")])
+    split = (metrics or {}).get("split") or (config or {}).get("train", {}).get("val_split")
+    log, cut = [], []
+    if (path / "log.jsonl").is_file():
+        log, cut_short = read_jsonl(path / "log.jsonl")
+        cut += ["log.jsonl"] if cut_short else []
+    validation = None
+    if (path / VALIDATION_FILE).is_file():
+        validation, cut_short = read_jsonl(path / VALIDATION_FILE)
+        cut += [VALIDATION_FILE] if cut_short else []
+    if metrics is None and not reasons:
+        reasons.append("no metrics.json")
+    run = Run(path, name, metrics, config, data, dataset, split, info.get("world_size"), log, reasons)
+    run.info, run.validation, run.cut = info, validation, cut
+    if metrics is not None:
+        load_counts(run)
+    return run
+
+
+def load_counts(run: Run) -> None:
+    """The run's per-frame counts (sorted by frame id), checked against its metrics.json: they must hold
+    its frames and pool back to its F1 scores. Otherwise run.no_counts says why."""
+    file = run.path / bootstrap.FRAME_COUNTS
+    if not file.is_file():
+        run.no_counts = f"no {bootstrap.FRAME_COUNTS} (evaluated before per-frame counts: re-run `cli eval`)"
+        return
+    try:
+        frame_ids, counts = bootstrap.read_frame_counts(file)
+    except ValueError as error:
+        run.no_counts = str(error).replace(str(file), shown(file), 1)
+        return
+    order = np.argsort(frame_ids, kind="stable")
+    frame_ids, counts = [frame_ids[i] for i in order], counts[order]
+    if len(frame_ids) != run.metrics["frames"]:
+        run.no_counts = f"{shown(file)} holds {len(frame_ids)} frames, metrics.json {run.metrics['frames']}"
+        return
+    pooled = bootstrap.pooled_f1(counts, np.ones((1, len(counts))))
+    if any(abs(f1[0] - run.score(*key)) > 1e-9 for key, f1 in pooled.items()):
+        run.no_counts = f"{shown(file)} does not pool to the F1 of metrics.json (re-run `cli eval`)"
+        return
+    run.frame_ids, run.counts = frame_ids, counts
+
+
+def load_runs(paths: list[Path]) -> list[Run]:
+    folders = find_runs(paths)
+    names = [p.name for p in folders]
+    return [load_run(p, p.name if names.count(p.name) == 1 else f"{p.parent.name}/{p.name}") for p in folders]
+
+
+def group_blocks(runs: list[Run]) -> list[Block]:
+    """One block per (dataset, data folder, split); each block's runs must share the metric parameters."""
+    blocks: dict[tuple, Block] = {}
+    for run in runs:
+        key = (run.dataset, str(run.data or ""), run.split or "")
+        blocks.setdefault(key, Block(run.dataset, run.data, run.split, [])).runs.append(run)
+    for block in blocks.values():
+        check_metric_params(block.scored)
+        if block.data is not None:
+            block.manifest = read_json(block.data / "manifest.json")
+            block.synthetic = is_synthetic(block.manifest)
+    return [blocks[key] for key in sorted(blocks)]
+
+
+def check_metric_params(runs: list[Run]) -> None:
+    """Refuse to put runs scored with different metric thresholds in one table."""
+    for run in runs[1:]:
+        first, this = runs[0].metrics["metric_params"], run.metrics["metric_params"]
+        differ = [k for k in sorted(set(first) | set(this)) if first.get(k) != this.get(k)]
+        if differ:
+            what = "; ".join(f"{k} {this.get(k)} vs {first.get(k)}" for k in differ)
+            raise ValueError(
+                f"{run.path / 'metrics.json'}: scored with other metric parameters than "
+                f"{runs[0].path / 'metrics.json'} ({what}); they cannot share a table: re-run `cli eval` "
+                "on one of them or report them apart"
+            )
+
+
+def percent(value: float | None) -> str:
+    return "–" if value is None else f"{100 * value:.1f}"

@@ -233,9 +233,20 @@ def prepare(
         [],
         metavar="SPLIT=FILE",
         show_default="the dataset's splits",
-        help="A file of log ids / scene names, one per line, for SPLIT (repeatable), replacing the "
-        "dataset's splits, e.g. StreamMapNet's geographically disjoint ones; logs in no file are left out",
+        help="A file of log ids / scene names, or of frames (frame ids, nuScenes sample tokens, AV2 "
+        "<log>_<timestamp_ns>), one per line, for SPLIT (repeatable), replacing the dataset's splits, e.g. "
+        "StreamMapNet's geographically disjoint ones; logs and frames in no file are left out",
     ),
+    split_scheme: Literal["original", "geographic"] = typer.Option(
+        "original",
+        help="original: the dataset's splits (or --split-file's); geographic: by place, per city, so that no "
+        "val or test frame lies within --geo-buffer of a training frame",
+    ),
+    geo_cell: float = typer.Option(100.0, callback=positive, help="geographic: cell size in metres (x>0)"),
+    geo_buffer: float = typer.Option(
+        None, min=0, show_default="half the --range's length", help="geographic: metres kept between splits"
+    ),
+    geo_seed: int = typer.Option(0, min=0, help="geographic: the seed of the cells' assignment"),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Crop lane graphs to the ego frame; write graphs, paths, pieces and rasters to Parquet. A root
@@ -243,12 +254,13 @@ def prepare(
 
     \b
     Examples:
-      cli prepare --dataset av2 --root data/av2/sensor --out prepared/av2 --workers 8
+      cli prepare --dataset av2 --root data/av2/sensor --out prepared/geo --split-scheme geographic
       cli prepare --dataset nuscenes --root data/nuscenes --version v1.0-mini --out prepared/mini
     """
-    from benchmark.tables import prepare_table
+    from benchmark.tables import leakage_table, prepare_table
     from pipeline.geometry import Range
     from pipeline.prepare import prepare as run_prepare
+    from pipeline.splits.leakage import leakage_line
     from pipeline.targets import TargetOptions
 
     with reported_errors(), missing_ray():
@@ -264,10 +276,16 @@ def prepare(
         summary = run_prepare(
             dataset, root, out, options, version=version, split=split, workers=workers,
             frame_stride=frame_stride, on_error=on_error, overwrite=overwrite, split_files=split_files,
-            executor=executor, address=address,
+            executor=executor, address=address, split_scheme=split_scheme, geo_cell=geo_cell,
+            geo_buffer=geo_buffer, geo_seed=geo_seed,
         )  # fmt: skip
-    wrote = [out] + ([out / "errors.jsonl"] if summary["frames_skipped"] else [])
-    finish(summary, [(f"prepared {dataset} from {root}", prepare_table(summary))], wrote, as_json)
+    wrote = [out, out / "splits.png"] + ([out / "errors.jsonl"] if summary["frames_skipped"] else [])
+    tables = [(f"prepared {dataset} from {root}", prepare_table(summary))]
+    leakage = summary["leakage"]
+    if leakage["splits"]:
+        tables.append(("leakage: distance of each frame to the nearest training frame of its city",
+                       leakage_table(leakage)))  # fmt: skip
+    finish(summary, tables, wrote, as_json, [leakage_line(leakage, split_scheme)])
 
 
 @app.command(short_help="Train a baseline: LaneGAP, MapTR, STSU or HDMapNet")

@@ -20,12 +20,30 @@ def number(value) -> str:
 
 
 def prepare_table(summary: dict) -> Table:
-    """`cli prepare`'s summary: frames, the per-frame counts and the speed."""
+    """`cli prepare`'s summary: frames, the per-frame counts, what the split files or the split scheme left
+    out (where they did) and the speed."""
     table = Table("quantity", "value")
     keys = ("frames", "frames_skipped", "paths_per_frame", "pieces_per_frame", "junctions_per_frame",
-            "path_cap_hits", "logs_already_done", "logs_in_no_split_file", "frames_per_second")  # fmt: skip
+            "path_cap_hits", "logs_already_done", "logs_in_no_split_file", "frames_in_no_split_file",
+            "split_file_lines_naming_nothing_here", "split_file_lines_unmatched", "frames_in_buffer",
+            "frames_per_second")  # fmt: skip
     for key in keys:
-        table.add_row(key.replace("_", " "), number(summary[key]))
+        if key in summary:
+            value = summary[key]
+            table.add_row(key.replace("_", " "), number(len(value) if isinstance(value, list) else value))
+    return table
+
+
+def leakage_table(leakage: dict) -> Table:
+    """Each non-training split's distance from its frames to the nearest training frame of the same city
+    (pipeline/splits/leakage.py), per split and city."""
+    range_m = leakage["range_m"]
+    table = Table("split", "city", "frames", "within 5 m", f"within {range_m:g} m", "median m")
+    for split, row in leakage["splits"].items():
+        for city, values in [("all", row), *row["cities"].items()]:
+            median = "-" if values["median_m"] is None else f"{values['median_m']:.1f}"
+            table.add_row(split, city, str(values["frames"]), f"{100 * values['within_5m']:.1f} %",
+                          f"{100 * values['within_range']:.1f} %", median)  # fmt: skip
     return table
 
 

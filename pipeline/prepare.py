@@ -21,7 +21,10 @@ from pipeline.errors import DataError
 from pipeline.executor import import_ray, run_local, run_ray
 from pipeline.geometry import matrix_quaternion
 from pipeline.lane_graph import LaneMap
-from pipeline.records import Frame, Log
+from pipeline.records import Frame, Log, LogIndex
+from pipeline.splits.geographic import draw_split_map
+from pipeline.splits.leakage import read_and_measure
+from pipeline.splits.plan import SCHEMES, geographic_plan, needs_index, plan_from_files, read_split_files
 from pipeline.targets import FrameTargets, TargetOptions, flat_pose, frame_targets, warm_up
 
 console = Console(stderr=True)
@@ -29,19 +32,29 @@ console = Console(stderr=True)
 
 @dataclass(frozen=True)
 class Job:
-    """One log to prepare: what a worker needs to find and read it."""
+    """One log to prepare: what a worker needs to find and read it, and the split of its frames."""
 
     dataset: str
-    split: str
+    split: str  # of every frame, or "" when `frame_splits` gives each frame's
     name: str
-    n_frames: int
+    n_frames: int  # the frames it prepares
     ref: object  # av2: the log folder; nuscenes: a SceneRef
     root: Path
+    frame_splits: dict[int, str | None] | None = None  # timestamp_ns -> split, None: left out
+    planned: tuple[str, ...] = ()  # every split the plan gives its frames, --split or not
+
+    def split_of(self, timestamp_ns: int) -> str | None:
+        return self.split if self.frame_splits is None else self.frame_splits.get(timestamp_ns)
+
+    @property
+    def shards(self) -> list[str]:
+        splits = {self.split} if self.frame_splits is None else set(self.frame_splits.values()) - {None}
+        return [f"{split}__{self.name}" for split in sorted(splits)]
 
 
 @dataclass
 class LogResult:
-    shard: str
+    shards: list[str]
     frames: int = 0
     paths: int = 0
     pieces: int = 0
@@ -122,23 +135,6 @@ def check_options(
         raise ValueError(f"--executor must be local or ray, not {executor!r}")
 
 
-def read_split_files(split_files: dict[str, Path]) -> dict[str, str]:
-    """{log id or scene name: split} from one file of names (one per line) per split, e.g. the
-    geographically disjoint splits of StreamMapNet. A name in two files is an error."""
-    split_of: dict[str, str] = {}
-    for split, path in split_files.items():
-        if not Path(path).is_file():
-            raise FileNotFoundError(f"{path}: split file of split {split!r} not found")
-        for number, line in enumerate(Path(path).read_text().splitlines(), 1):
-            name = line.strip()
-            if not name or name.startswith("#"):
-                continue
-            if split_of.get(name, split) != split:
-                raise DataError(path, f"line {number}", f"{name} is already in split {split_of[name]!r}")
-            split_of[name] = split
-    return split_of
-
-
 def load_job(job: Job, frame_stride: int, options: TargetOptions) -> Log:
     if job.dataset == "av2":
         from pipeline.adapters import av2
@@ -149,6 +145,17 @@ def load_job(job: Job, frame_stride: int, options: TargetOptions) -> Log:
     log = nuscenes.load_log(job.ref, options.bev_range.radius)
     log.frames = log.frames[::frame_stride]
     return log
+
+
+def index_job(job: Job) -> LogIndex:
+    """Where the log's frames are (adapters' index_log), without reading its map or sensors."""
+    if job.dataset == "av2":
+        from pipeline.adapters import av2
+
+        return av2.index_log(job.ref)
+    from pipeline.adapters import nuscenes
+
+    return nuscenes.index_log(job.ref)
 
 
 def frame_row(frame: Frame, targets: FrameTargets) -> dict:
@@ -259,8 +266,9 @@ def log_tables(
 def prepare_log(
     job: Job, out: Path, options: TargetOptions, frame_stride: int, on_error: str, on_frame=None
 ) -> LogResult:
-    """Prepare one log and write its shards; bad frames raise (fail) or are recorded (skip)."""
-    result = LogResult(f"{job.split}__{job.name}")
+    """Prepare one log and write its shards, one per split of its frames (frames the plan leaves out are
+    not read); bad frames raise (fail) or are recorded (skip)."""
+    result = LogResult(job.shards)
     try:
         log = load_job(job, frame_stride, options)
     except DataError as error:
@@ -272,7 +280,9 @@ def prepare_log(
     lane_map = LaneMap.from_lanes(log.lanes)
     frames, targets = [], []
     for frame in log.frames:
-        frame.split = job.split  # a split file may have moved the log to another split
+        frame.split = job.split_of(frame.timestamp_ns)  # a split file or the scheme may have moved it
+        if frame.split is None:
+            continue
         try:
             if not np.isfinite(frame.ego_to_world).all():
                 raise DataError(
@@ -290,7 +300,11 @@ def prepare_log(
             result.skipped += 1
         if on_frame:
             on_frame()
-    io.write_shard(out, result.shard, log_tables(frames, targets, options))
+    remove_stale_shards(out, job)
+    for shard in job.shards:
+        split = shard.split("__")[0]
+        ours = [i for i, frame in enumerate(frames) if frame.split == split]
+        io.write_shard(out, shard, log_tables([frames[i] for i in ours], [targets[i] for i in ours], options))
     result.frames = len(frames)
     result.paths = sum(len(t.paths.vertex_ids) for t in targets)
     result.pieces = sum(len(t.pieces.chains) for t in targets)
@@ -298,6 +312,16 @@ def prepare_log(
     result.cap_hits = sum(t.paths.cap_hit for t in targets)
     result.peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return result
+
+
+def remove_stale_shards(out: Path, job: Job) -> None:
+    """The log's shards of splits its plan no longer gives it (an --overwrite with other split files or
+    another scheme): its frames must not stand in two splits."""
+    planned = {f"{split}__{job.name}" for split in job.planned or {job.split}}
+    for table in io.TABLES:
+        for path in (out / table).glob(f"*__{job.name}.parquet"):
+            if path.stem not in planned:
+                path.unlink()
 
 
 def package_versions() -> dict[str, str]:
@@ -320,40 +344,141 @@ def package_versions() -> dict[str, str]:
     return versions
 
 
-def select_jobs(
-    dataset: str, root: Path, version: str, split: str | None, frame_stride: int,
-    split_files: dict[str, Path] | None,
-) -> tuple[list[Job], int]:  # fmt: skip
-    """The logs to prepare and how many logs the split files leave out; a root without one is an error
-    (a wrong --root or --dataset would otherwise prepare 0 frames and leave a manifest behind)."""
-    if split_files:  # the files' splits replace the dataset's own; --split then picks one of theirs
-        found = find_jobs(dataset, root, version, None, frame_stride)
-        split_of = read_split_files(split_files)
-        named = [replace(job, split=split_of[job.name]) for job in found if job.name in split_of]
-        jobs = [job for job in named if split is None or job.split == split]
-        left_out = len(found) - len(named)
-    else:
-        jobs, left_out = find_jobs(dataset, root, version, split, frame_stride), 0
-    if not jobs and not split_files:
+@dataclass
+class SplitOptions:
+    """How frames are put in splits: the dataset's own or `split_files` (the original scheme), or the
+    geographic scheme's cells of `geo_cell` metres, buffer of `geo_buffer` metres (None: the range's
+    half-length) and seed."""
+
+    scheme: str = "original"
+    split_files: dict[str, Path] | None = None
+    geo_cell: float = 100.0
+    geo_buffer: float | None = None
+    geo_seed: int = 0
+
+    def check(self, options: TargetOptions) -> None:
+        if self.scheme not in SCHEMES:
+            raise ValueError(f"--split-scheme must be one of {', '.join(SCHEMES)}, not {self.scheme!r}")
+        if self.scheme == "geographic" and self.split_files:
+            raise ValueError("--split-scheme geographic and --split-file: the scheme makes the splits, "
+                             "the files name them; choose one")  # fmt: skip
+        if not self.geo_cell > 0:
+            raise ValueError(f"--geo-cell must be greater than 0 m, not {self.geo_cell}")
+        if self.geo_buffer is not None and not self.geo_buffer >= 0:
+            raise ValueError(f"--geo-buffer must be 0 m or more, not {self.geo_buffer}")
+        if self.geo_buffer is None:
+            self.geo_buffer = half_length(options)
+
+
+def half_length(options: TargetOptions) -> float:
+    """Half the perception range's longer side: two frames closer than this see overlapping windows."""
+    r = options.bev_range
+    return max(r.x_max - r.x_min, r.y_max - r.y_min) / 2
+
+
+@dataclass
+class Plan:
+    """The logs to prepare with the split of their frames, and what the plan left out."""
+
+    jobs: list[Job]
+    counts: dict = field(default_factory=dict)  # for the summary: logs and frames left out, and why
+    geo: object = None  # the geographic scheme's GeoSplit (pipeline/splits/geographic.py), for the picture
+
+
+def with_frame_splits(job: Job, frame_splits: dict[int, str | None]) -> Job:
+    planned = tuple(sorted(set(frame_splits.values()) - {None}))
+    n_frames = sum(split is not None for split in frame_splits.values())
+    return replace(job, split="", frame_splits=frame_splits, n_frames=n_frames, planned=planned)
+
+
+def only_split(job: Job, split: str) -> Job | None:
+    """The job restricted to the frames of `split` (--split), None when it has none."""
+    if job.frame_splits is None:
+        return job if job.split == split else None
+    frames = {t: (s if s == split else None) for t, s in job.frame_splits.items()}
+    n_frames = sum(s is not None for s in frames.values())
+    return replace(job, frame_splits=frames, n_frames=n_frames) if n_frames else None
+
+
+def plan_files(found: list[Job], split_files: dict[str, Path], frame_stride: int) -> Plan:
+    """The split files' splits, of whole logs or of frames; logs and frames in no file are left out."""
+    lines = read_split_files(split_files)
+    indexes = {job.name: index_job(job) for job in found} if needs_index(lines) else {}
+    files = plan_from_files(lines, [job.name for job in found], indexes)
+    jobs, frames_unnamed = [], 0
+    for job in found:
+        if job.name in files.frame_split:
+            named, whole = files.frame_split[job.name], files.log_split.get(job.name)
+            times = indexes[job.name].timestamps[::frame_stride].tolist()
+            frame_splits = {t: named.get(t, whole) for t in times}
+            frames_unnamed += sum(split is None for split in frame_splits.values())
+            jobs.append(with_frame_splits(job, frame_splits))
+        elif job.name in files.log_split:
+            jobs.append(replace(job, split=files.log_split[job.name]))
+    counts = {"logs_in_no_split_file": len(found) - len(jobs)}
+    if indexes:
+        counts |= {"frames_in_no_split_file": frames_unnamed,
+                   "split_file_lines_unmatched": [f"{line.path}:{line.number}: {line.text}"
+                                                  for line in files.unmatched]}  # fmt: skip
+    counts["split_file_lines_naming_nothing_here"] = files.elsewhere
+    return Plan(jobs, counts)
+
+
+def plan_geographic(found: list[Job], splits: SplitOptions, frame_stride: int) -> Plan:
+    """The geographic scheme over every log's frames (pipeline/splits/geographic.py)."""
+    indexes = {job.name: index_job(job) for job in found}
+    original = {job.name: job.split for job in found}
+    try:
+        frame_splits, geo = geographic_plan(
+            [job.name for job in found], indexes, original, frame_stride, splits.geo_cell, splits.geo_buffer,
+            splits.geo_seed,
+        )  # fmt: skip
+    except ValueError as error:
+        raise ValueError(f"--split-scheme geographic: {error}") from error
+    jobs = [with_frame_splits(job, frame_splits[job.name]) for job in found]
+    return Plan([job for job in jobs if job.n_frames], {"frames_in_buffer": sum(geo.left_out.values())}, geo)
+
+
+def plan_jobs(
+    dataset: str, root: Path, version: str, split: str | None, frame_stride: int, splits: SplitOptions
+) -> Plan:
+    """The logs to prepare, each frame's split, and what was left out; a root without a log is an error (a
+    wrong --root or --dataset would otherwise prepare 0 frames and leave a manifest behind)."""
+    whole = bool(splits.split_files) or splits.scheme == "geographic"  # --split picks among the plan's
+    found = find_jobs(dataset, root, version, None if whole else split, frame_stride)
+    if not found and not splits.split_files:
         raise ValueError(no_logs_found(dataset, root, version, split))
-    if not jobs:
-        names = ", ".join(f"{name}={path}" for name, path in split_files.items())
+    if splits.split_files:
+        plan = plan_files(found, splits.split_files, frame_stride)
+    elif splits.scheme == "geographic":
+        plan = plan_geographic(found, splits, frame_stride)
+    else:
+        plan = Plan(found, {"logs_in_no_split_file": 0})
+    if whole and split:
+        plan.jobs = [job for job in map(functools.partial(only_split, split=split), plan.jobs) if job]
+    if not plan.jobs and splits.split_files:
+        names = ", ".join(f"{name}={path}" for name, path in splits.split_files.items())
         in_split = f" of split {split}" if split else ""
         raise ValueError(
             f"{root}: none of its {len(found)} logs is named in the split files{in_split} ({names})"
         )
-    return jobs, left_out
+    if not plan.jobs:
+        raise ValueError(f"{root}: --split-scheme geographic puts no frame in split {split!r}")
+    return plan
 
 
-def manifest_parameters(
-    options: TargetOptions, frame_stride: int, split_files: dict[str, Path] | None
-) -> dict:
+def manifest_parameters(options: TargetOptions, frame_stride: int, splits: SplitOptions) -> dict:
     """The options that make the shards what they are, as the manifest records them."""
     options_dict = asdict(options)
     options_dict["bev_range"] = options.bev_range.text
-    parameters = {**options_dict, "frame_stride": frame_stride}
-    if split_files:
-        parameters["split_files"] = {name: str(Path(path).resolve()) for name, path in split_files.items()}
+    parameters = {**options_dict, "frame_stride": frame_stride, "split_scheme": splits.scheme}
+    if splits.split_files:
+        parameters["split_files"] = {
+            name: str(Path(path).resolve()) for name, path in splits.split_files.items()
+        }
+    if splits.scheme == "geographic":
+        parameters |= {"geo_cell": splits.geo_cell, "geo_buffer": splits.geo_buffer,
+                       "geo_seed": splits.geo_seed}  # fmt: skip
     return parameters
 
 
@@ -364,7 +489,7 @@ def check_manifest(out: Path, dataset: str, parameters: dict, overwrite: bool) -
     if not manifest_path.is_file() or overwrite:
         return
     before = json.loads(manifest_path.read_text())
-    old = {"dataset": before.get("dataset"), **before.get("parameters", {})}
+    old = {"dataset": before.get("dataset"), "split_scheme": "original", **before.get("parameters", {})}
     new = {"dataset": dataset, **parameters}
     differing = [key for key in {**old, **new} if key != "split" and old.get(key) != new.get(key)]
     if differing:
@@ -406,14 +531,12 @@ def append_errors(out: Path, errors: list[dict]) -> None:
         io.write_atomic(out / "errors.jsonl", lambda tmp: tmp.write_text(lines))
 
 
-def summarize(
-    jobs: list[Job], todo: list[Job], left_out: int, results: list[LogResult], seconds: float
-) -> dict:
+def summarize(plan: Plan, todo: list[Job], results: list[LogResult], seconds: float, leakage: dict) -> dict:
     """The run's summary: what `prepare` returns and the manifest's last_run."""
-    frames = sum(r.frames for r in results)
+    jobs, frames = plan.jobs, sum(r.frames for r in results)
     return {
         "logs": len(jobs),
-        "logs_in_no_split_file": left_out,
+        **plan.counts,
         "logs_prepared": len(todo),
         "logs_already_done": len(jobs) - len(todo),
         "frames": frames,
@@ -425,6 +548,7 @@ def summarize(
         "seconds": seconds,
         "frames_per_second": frames / seconds if seconds > 0 else 0.0,
         "peak_worker_mib": max((r.peak_mib for r in results), default=0.0),
+        "leakage": leakage,
     }
 
 
@@ -444,7 +568,8 @@ def write_manifest(
                       "y_min": options.bev_range.y_min, "y_max": options.bev_range.y_max},
             "packages": package_versions(),
             "rows": {table: io.count_rows(out, table) for table in io.TABLES},
-            "last_run": summary,
+            "leakage": summary["leakage"],
+            "last_run": {key: value for key, value in summary.items() if key != "leakage"},
         },
     )  # fmt: skip
 
@@ -463,22 +588,32 @@ def prepare(
     split_files: dict[str, Path] | None = None,
     executor: str = "local",
     address: str | None = None,
+    split_scheme: str = "original",
+    geo_cell: float = 100.0,
+    geo_buffer: float | None = None,
+    geo_seed: int = 0,
 ) -> dict:
-    """Prepare every log of root into out; returns (and prints) a summary. split_files ({split: file
-    of log ids or scene names}) replaces the dataset's own splits; logs in no file are left out.
+    """Prepare every log of root into out; returns (and prints) a summary. split_files ({split: file of
+    log ids, scene names or frames}) replaces the dataset's own splits; logs and frames in no file are left
+    out. split_scheme "geographic" puts frames in splits by place (SplitOptions, pipeline/splits/). Every
+    run measures the leakage of the whole output's non-training splits (pipeline/splits/leakage.py) into
+    manifest.json and draws OUT/splits.png.
     executor: local (this process, or a fork pool of `workers`) or ray (one Ray task per log: a local
     instance of `workers` CPUs, or the cluster at address, "auto" or HOST:PORT; pipeline/executor.py)."""
     check_options(options, frame_stride, workers, on_error, executor)
+    splits = SplitOptions(split_scheme, split_files, geo_cell, geo_buffer, geo_seed)
+    splits.check(options)
     if address and executor != "ray":
         raise ValueError("--address is for --executor ray")
     if executor == "ray":  # before any work: a missing Ray is a one-line error, not a traceback later
         import_ray()
     root, out = Path(root).resolve(), Path(out)
-    jobs, left_out = select_jobs(dataset, root, version, split, frame_stride, split_files)
-    parameters = manifest_parameters(options, frame_stride, split_files)
+    parameters = manifest_parameters(options, frame_stride, splits)
     check_manifest(out, dataset, parameters, overwrite)
+    plan = plan_jobs(dataset, root, version, split, frame_stride, splits)
     out.mkdir(parents=True, exist_ok=True)
-    todo = [j for j in jobs if overwrite or not io.shard_done(out, f"{j.split}__{j.name}")]
+    done = functools.partial(io.shard_done, out)
+    todo = [job for job in plan.jobs if overwrite or not all(map(done, job.shards))]
     start = time.perf_counter()
     columns = [
         TextColumn("prepare {task.description}"),
@@ -492,6 +627,18 @@ def prepare(
         results = run_jobs(todo, out, options, frame_stride, on_error, workers, executor, address, advance)
     elapsed = time.perf_counter() - start
     append_errors(out, [e for r in results for e in r.errors])
-    summary = summarize(jobs, todo, left_out, results, elapsed)
+    leakage = read_and_measure(out, half_length(options))
+    summary = summarize(plan, todo, results, elapsed, leakage)
     write_manifest(out, dataset, root, version, parameters, split, options, summary)
+    draw_splits(out, plan.geo, splits.geo_cell)
     return summary
+
+
+def draw_splits(out: Path, geo, cell_m: float) -> None:
+    """OUT/splits.png: every prepared frame on its city's plane, coloured by split (with the geographic
+    scheme's cells)."""
+    frames = io.read_table(out, "frames", columns=["city", "split", "pose_translation"])
+    xy = np.array(frames.column("pose_translation").to_pylist(), np.float64).reshape(-1, 3)[:, :2]
+    cells = geo.cells if geo is not None else None
+    draw_split_map(frames.column("city").to_pylist(), xy, frames.column("split").to_pylist(),
+                   out / "splits.png", cells=cells, cell_m=cell_m if cells else None)  # fmt: skip

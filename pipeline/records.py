@@ -61,3 +61,14 @@ class Log:
     frames: list[Frame]
     map_is_2d: bool = False  # nuScenes maps have no heights: crop with the pose's yaw alone
     pose_source: str = ""  # the file the ego poses came from, for error messages
+
+
+@dataclass
+class LogIndex:
+    """Where a log's frames are, read without its map or sensors: what split files of frames and the
+    geographic split scheme need before any frame is prepared. Every frame, before --frame-stride."""
+
+    city: str
+    timestamps: np.ndarray  # (N,) int64 ns, in frame order
+    xy: np.ndarray  # (N, 2) float64 world x, y of each frame's BEV origin (frames.pose_translation)
+    sample_tokens: list[str] | None = None  # nuScenes: each frame's sample token

@@ -379,6 +379,34 @@ def test_the_report_writes_relative_paths(made, monkeypatch):
     assert UNKNOWN_ORIGIN_NOTE in text and "## av2: `av2`, val split" in text
 
 
+def test_the_data_split_scheme_and_leakage_stand_under_the_main_table(made, tmp_path):
+    from pipeline.splits.leakage import leakage_line, read_and_measure
+
+    data, run = tmp_path / "av2", tmp_path / "runs" / "lanegap_lidar"
+    shutil.copytree(made["av2"], data)
+    shutil.copytree(made["runs"] / "lanegap_lidar", run)
+    metrics = json.loads((run / "metrics.json").read_text())
+    (run / "metrics.json").write_text(json.dumps({**metrics, "data": str(data)}))
+    manifest = json.loads((data / "manifest.json").read_text())
+    leakage = read_and_measure(data, 30.0)
+    assert leakage["splits"]["val"]["within_5m"] == 0.0  # the validation log drives no training road
+    parameters = {k: v for k, v in manifest["parameters"].items() if k != "split_scheme"}
+    old = {k: v for k, v in manifest.items() if k != "leakage"} | {"parameters": parameters}  # before leakage
+    new = old | {"parameters": parameters | {"split_scheme": "original"}, "leakage": leakage}
+    unknown = "split scheme unknown; leakage not measured (prepared before leakage was recorded)"
+    for written, line in [(new, leakage_line(leakage, "original")), (old, unknown)]:
+        (data / "manifest.json").write_text(json.dumps(written))
+        text = write_report([run], tmp_path / "r", draws=0).path.read_text()
+        main = section(text, "### Main table").splitlines()
+        start = next(i for i, row in enumerate(main) if row.startswith("|"))
+        end = next(i for i in range(start, len(main)) if not main[i].startswith("|"))
+        assert main[end : end + 3] == ["", line, ""]  # the line right under the main table
+        assert text.count(line) == 1
+    assert leakage_line(leakage, "original").startswith(
+        "split scheme original; leakage: val 0.0 % of 4 frames within 5 m of a training frame (the same city)"
+    )
+
+
 def junctions_by_degree(graph: LaneGraph) -> int:
     """A plain reading of the report's definition: merge identical points, drop self-loops and repeated
     edges, count the vertices with in-degree >= 2 or out-degree >= 2."""

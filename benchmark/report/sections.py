@@ -49,6 +49,7 @@ from benchmark.report.reference import ReferenceTable
 from benchmark.report.runs import VALIDATION_FILE, Block, Run, percent, shown
 from benchmark.report.summary import summary
 from pipeline.geometry import Range
+from pipeline.splits.leakage import leakage_line
 
 FLOOR_NOTE = (
     "Rows `constant prior` and `<run>: other log's sensors` are the sensor-blind floor (`cli eval`): what "
@@ -133,6 +134,8 @@ def main_section(block: Block, beside: list[tuple[ReferenceTable, list[dict]]], 
     md += [""] if any(run.no_counts for run in block.scored) else []
     md += [f"- {note}" for note in external_notes(block)]
     md += [""] if any(run.external is not None for run in block.scored) else []
+    # the data's split scheme and how near its evaluated frames lie to a training frame (`cli prepare`)
+    md += [leakage_line(block.manifest.get("leakage"), block.parameters.get("split_scheme")), ""]
     doc.shown_references.append([])
     if refs:
         if block.synthetic:

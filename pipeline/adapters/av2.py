@@ -9,7 +9,7 @@ import pyarrow.feather as feather
 
 from pipeline.errors import DataError
 from pipeline.geometry import AV2_EGO_FROM_BEV
-from pipeline.records import Camera, Frame, Lane, Log
+from pipeline.records import Camera, Frame, Lane, Log, LogIndex
 
 BEV_FROM_AV2_EGO = np.linalg.inv(AV2_EGO_FROM_BEV)
 RING_CAMERAS = (
@@ -38,28 +38,37 @@ def read_lanes(log_dir: Path) -> tuple[list[Lane], str]:
     """Centerlines (av2 API, 10 points each) and successors of the log's vector map, and the city."""
     from av2.map.map_api import ArgoverseStaticMap
 
-    map_dir = log_dir / "map"
-    files = sorted(map_dir.glob("log_map_archive_*.json"))
-    if len(files) != 1:
-        raise DataError(
-            map_dir, "log_map_archive_*.json", f"expected one vector map file, found {len(files)}"
-        )
+    file = vector_map_file(log_dir)
     try:
-        static_map = ArgoverseStaticMap.from_json(files[0])
+        static_map = ArgoverseStaticMap.from_json(file)
     except Exception as error:  # the av2 parser raises JSONDecodeError, KeyError, TypeError, ...
-        raise DataError(files[0], "vector map", f"cannot be read: {type(error).__name__}: {error}") from error
+        raise DataError(file, "vector map", f"cannot be read: {type(error).__name__}: {error}") from error
     lanes = []
     for lane_id in sorted(static_map.vector_lane_segments):
         segment = static_map.vector_lane_segments[lane_id]
         try:
             xyz = static_map.get_lane_segment_centerline(lane_id)
         except Exception as error:
-            raise DataError(files[0], f"lane segment {lane_id}", f"bad boundaries: {error}") from error
+            raise DataError(file, f"lane segment {lane_id}", f"bad boundaries: {error}") from error
         if not np.isfinite(xyz).all():
-            raise DataError(files[0], f"lane segment {lane_id}", "centerline has non-finite coordinates")
+            raise DataError(file, f"lane segment {lane_id}", "centerline has non-finite coordinates")
         lanes.append(Lane(str(lane_id), xyz.astype(np.float64), [str(s) for s in segment.successors or []]))
-    city = files[0].stem.split("____")[-1].split("_")[0] if "____" in files[0].stem else ""
-    return lanes, city
+    return lanes, map_city(file)
+
+
+def vector_map_file(log_dir: Path) -> Path:
+    map_dir = log_dir / "map"
+    files = sorted(map_dir.glob("log_map_archive_*.json"))
+    if len(files) != 1:
+        raise DataError(
+            map_dir, "log_map_archive_*.json", f"expected one vector map file, found {len(files)}"
+        )
+    return files[0]
+
+
+def map_city(file: Path) -> str:
+    """The city that a vector map's file name carries (`log_map_archive_<log>____<CITY>_city_<id>.json`)."""
+    return file.stem.split("____")[-1].split("_")[0] if "____" in file.stem else ""
 
 
 def frame_timestamps(log_dir: Path) -> np.ndarray:
@@ -130,15 +139,30 @@ def nearest(times: np.ndarray, t: int) -> int:
     return i - 1 if len(times) > 1 and t - times[i - 1] <= times[i] - t else i
 
 
+def frame_poses(log_dir: Path, timestamps: np.ndarray) -> list[np.ndarray]:
+    """The BEV frame's pose in the city frame at each timestamp (the pose nearest in time)."""
+    pose_times, ego_to_city = read_poses(log_dir)
+    return [ego_to_city[pose_times[nearest(pose_times, t)]].transform_matrix @ AV2_EGO_FROM_BEV
+            for t in timestamps.tolist()]  # fmt: skip
+
+
+def index_log(log_dir: Path) -> LogIndex:
+    """Every frame's time and position and the log's city, without reading its map or sensors."""
+    timestamps = frame_timestamps(log_dir)
+    poses = frame_poses(log_dir, timestamps)
+    xy = np.array([pose[:2, 3] for pose in poses], np.float64).reshape(-1, 2)
+    return LogIndex(map_city(vector_map_file(log_dir)), timestamps, xy)
+
+
 def load_log(root: Path, split: str, log_dir: Path, frame_stride: int = 1) -> Log:
     lanes, city = read_lanes(log_dir)
-    pose_times, ego_to_city = read_poses(log_dir)
+    timestamps = frame_timestamps(log_dir)[::frame_stride]
+    poses = frame_poses(log_dir, timestamps)
     cameras = read_cameras(log_dir)
     has_lidar = (log_dir / "sensors" / "lidar").is_dir()
     lane_points = np.concatenate([lane.xyz for lane in lanes]) if lanes else np.zeros((0, 3))
     frames, heights = [], []
-    for t in frame_timestamps(log_dir)[::frame_stride].tolist():
-        pose = ego_to_city[pose_times[nearest(pose_times, t)]].transform_matrix @ AV2_EGO_FROM_BEV
+    for t, pose in zip(timestamps.tolist(), poses):
         frame_cameras = [
             Camera(
                 name,

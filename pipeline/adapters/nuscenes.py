@@ -14,7 +14,7 @@ import numpy as np
 
 from pipeline.errors import DataError
 from pipeline.geometry import pose_matrix
-from pipeline.records import Camera, Frame, Lane, Log
+from pipeline.records import Camera, Frame, Lane, Log, LogIndex
 
 LANE_RESOLUTION_M = 0.5  # arc chord error at 0.5 m spacing is under 1 cm for radii above 3 m
 
@@ -144,6 +144,23 @@ def ground_plane(calib: dict) -> tuple[float, list[float]]:
     lidar_to_ego = pose_matrix(calib["rotation"], calib["translation"])
     up, height = lidar_to_ego[2, :3], lidar_to_ego[2, 3]
     return float(-height / up[2]), [float(-up[0] / up[2]), float(-up[1] / up[2])]
+
+
+def index_log(ref: SceneRef) -> LogIndex:
+    """Every key frame's time, position (LIDAR_TOP, the BEV origin) and sample token, and the scene's map,
+    from the tables alone."""
+    nusc = load_tables(ref.dataroot, ref.version)
+    scene = nusc.get("scene", ref.scene_token)
+    times, xy, tokens = [], [], []
+    token = scene["first_sample_token"]
+    while token:
+        sample = nusc.get("sample", token)
+        times.append(int(sample["timestamp"]) * 1000)
+        xy.append(sensor_to_world(nusc, nusc.get("sample_data", sample["data"]["LIDAR_TOP"]))[:2, 3])
+        tokens.append(token)
+        token = sample["next"]
+    city = nusc.get("log", scene["log_token"])["location"]
+    return LogIndex(city, np.array(times, np.int64), np.array(xy, np.float64).reshape(-1, 2), tokens)
 
 
 def load_log(ref: SceneRef, margin: float) -> Log:

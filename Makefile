@@ -132,6 +132,7 @@ bench: $(STAMP)
 	$(PY) -m tools.bench_metrics
 	$(PY) -m tools.bench_external
 	$(PY) -m tools.bench_loader
+	$(PY) -m tools.bench_splits
 
 bench-train: $(STAMP)
 	$(PY) -m tools.bench_train

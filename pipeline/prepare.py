@@ -22,7 +22,7 @@ from pipeline.executor import import_ray, run_local, run_ray
 from pipeline.geometry import matrix_quaternion
 from pipeline.lane_graph import LaneMap
 from pipeline.records import Frame, Log, LogIndex
-from pipeline.splits.geographic import draw_split_map
+from pipeline.splits.geographic import draw_dataset_splits
 from pipeline.splits.leakage import read_and_measure
 from pipeline.splits.plan import SCHEMES, geographic_plan, needs_index, plan_from_files, read_split_files
 from pipeline.targets import FrameTargets, TargetOptions, flat_pose, frame_targets, warm_up
@@ -630,15 +630,7 @@ def prepare(
     leakage = read_and_measure(out, half_length(options))
     summary = summarize(plan, todo, results, elapsed, leakage)
     write_manifest(out, dataset, root, version, parameters, split, options, summary)
-    draw_splits(out, plan.geo, splits.geo_cell)
+    cells = plan.geo.cells if plan.geo is not None else None
+    draw_dataset_splits(out, out / "splits.png", cells, splits.geo_cell if cells else None)
     return summary
 
-
-def draw_splits(out: Path, geo, cell_m: float) -> None:
-    """OUT/splits.png: every prepared frame on its city's plane, coloured by split (with the geographic
-    scheme's cells)."""
-    frames = io.read_table(out, "frames", columns=["city", "split", "pose_translation"])
-    xy = np.array(frames.column("pose_translation").to_pylist(), np.float64).reshape(-1, 3)[:, :2]
-    cells = geo.cells if geo is not None else None
-    draw_split_map(frames.column("city").to_pylist(), xy, frames.column("split").to_pylist(),
-                   out / "splits.png", cells=cells, cell_m=cell_m if cells else None)  # fmt: skip

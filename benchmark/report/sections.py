@@ -49,6 +49,7 @@ from benchmark.report.reference import ReferenceTable
 from benchmark.report.runs import VALIDATION_FILE, Block, Run, percent, shown
 from benchmark.report.summary import summary
 from pipeline.geometry import Range
+from pipeline.splits.geographic import draw_dataset_splits
 from pipeline.splits.leakage import leakage_line
 
 FLOOR_NOTE = (
@@ -76,6 +77,10 @@ VALIDATION_NOTE = (
     "metrics.json, scored on `cli eval`'s frames. Star: the checkpoint kept as best.pt (`best` in run.json)."
 )
 GRID_NOTE = "Each piece in its own colour, arrows in the driving direction, the ego car in grey."
+SPLITS_NOTE = (
+    "Every frame of the prepared data on its city's plane (world x, y), coloured by split: where a scored "
+    "frame lies near a training frame, the model may recognise the place (the leakage line above)."
+)
 
 
 @dataclass
@@ -231,6 +236,14 @@ def f1_section(block: Block, slug: str, doc: Sections) -> list[str]:
     return ["### F1 by run", "", f"![F1 by run]({bars})", ""]
 
 
+def splits_section(block: Block, slug: str, doc: Sections) -> list[str]:
+    """Where the block's data lies, every frame coloured by split, as `cli prepare` draws DATA/splits.png."""
+    name = f"splits_{slug}.png"
+    draw_dataset_splits(block.data, doc.out / name)
+    doc.pictures.append(doc.out / name)
+    return ["### Splits", "", f"![frames by split]({name})", "", SPLITS_NOTE, ""]
+
+
 def block_sections(index: int, block: Block, doc: Sections) -> list[str]:
     """Everything of one block (a dataset, range and split): its tables and pictures."""
     slug = f"{index}_{block.dataset}"
@@ -243,7 +256,7 @@ def block_sections(index: int, block: Block, doc: Sections) -> list[str]:
     if block.data is None:
         return md + ["The data folder was not found: no scores by junction count and no frame grid.", ""]
     md += junction_sections(block, slug, doc)
-    return md + f1_section(block, slug, doc)
+    return md + f1_section(block, slug, doc) + splits_section(block, slug, doc)
 
 
 def roundtrip_section(

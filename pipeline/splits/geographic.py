@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pipeline import io
 from pipeline.io import write_atomic
 from pipeline.splits.leakage import is_training
 
@@ -298,3 +299,13 @@ def _draw_cells(ax, cells: np.ndarray, here, where, cell_m: float, colour: dict)
     ax.add_collection(
         PatchCollection(squares, facecolors=faces, edgecolors=[CELL_EDGE], linewidths=0.5, zorder=1)
     )
+
+
+def draw_dataset_splits(
+    data: Path, path: Path, cells: dict | None = None, cell_m: float | None = None
+) -> None:
+    """draw_split_map of every frame of a prepared dataset (its `frames` table), e.g. DATA/splits.png."""
+    frames = io.read_table(data, "frames", columns=["city", "split", "pose_translation"])
+    xy = np.array(frames.column("pose_translation").to_pylist(), np.float64).reshape(-1, 3)[:, :2]
+    split = frames.column("split").to_pylist()
+    draw_split_map(frames.column("city").to_pylist(), xy, split, path, cells=cells, cell_m=cell_m)

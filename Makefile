@@ -133,6 +133,7 @@ bench: $(STAMP)
 	$(PY) -m tools.bench_external
 	$(PY) -m tools.bench_loader
 	$(PY) -m tools.bench_splits
+	$(PY) -m tools.bench_openlanev2
 
 bench-train: $(STAMP)
 	$(PY) -m tools.bench_train

@@ -44,6 +44,8 @@ PRESET_DEFAULTS = {  # the presets' values of the `cli train` options that defau
 }
 PATH_POINTS = Literal[10, 20, 30, 40]  # the paper's counts of points per path (Tab. 8)
 JSON_HELP = "Print the result as one JSON line instead of the tables (for scripts)"
+METRIC_HELP = ("lanegap (TOPO and Junction TOPO, ours), openlanev2 (OpenLane-V2's DET_l, TOP_ll): "
+               "comma-separated, each under its name in the result (docs/METRICS.md)")  # fmt: skip
 
 
 @contextmanager
@@ -71,28 +73,6 @@ def bezier_points_check(value: int | None) -> int | None:
     if value is not None and (value < 0 or value == 1):
         raise typer.BadParameter(f"{value} is neither 0 (polyline) nor in the range x>=2.")
     return value
-
-
-def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[str] = ()) -> None:
-    """A command's end: with --json its result as one JSON line on stdout (and what it wrote on stderr);
-    else its (heading, table) pairs, notes and the paths it wrote."""
-    written = f"wrote {', '.join(str(path) for path in wrote)}" if wrote else ""
-    if as_json:
-        typer.echo(json.dumps(result))
-        if written:
-            typer.echo(written, err=True)
-        return
-    from rich.console import Console
-    from rich.text import Text
-
-    console = Console()
-    one_line = not console.is_terminal  # a log keeps each line whole; a terminal wraps it between words
-    for heading, table in tables:
-        console.print(Text(heading, style="bold"), soft_wrap=one_line)  # a table title wraps at its width
-        console.print(table)
-    for line in [*notes, written]:
-        if line:
-            console.print(Text(line), soft_wrap=one_line)
 
 
 def version_text() -> str:
@@ -169,6 +149,7 @@ def synth(
       cli synth --out demo/raw
       cli synth --out tiny/raw --logs 2 --frames-per-log 3 --val-frames-per-log 3 --worlds 2 --no-sensors
     """
+    from benchmark.tables import finish
     from pipeline.synth import summary_table
     from pipeline.synth import synth as write_synth
 
@@ -257,7 +238,7 @@ def prepare(
       cli prepare --dataset av2 --root data/av2/sensor --out prepared/geo --split-scheme geographic
       cli prepare --dataset nuscenes --root data/nuscenes --version v1.0-mini --out prepared/mini
     """
-    from benchmark.tables import leakage_table, prepare_table
+    from benchmark.tables import finish, leakage_table, prepare_table
     from pipeline.geometry import Range
     from pipeline.prepare import prepare as run_prepare
     from pipeline.splits.leakage import leakage_line
@@ -410,7 +391,7 @@ def train(
         summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite)
     if not as_json and os.environ.get("RANK", "0") != "0":
         return  # under torchrun, rank 0 reports
-    from benchmark.tables import train_table
+    from benchmark.tables import finish, train_table
 
     heading = f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {data}"
     names = ("config.json", "run.json", "checkpoint.pt", "best.pt", "log.jsonl", "val.jsonl", "tb")
@@ -437,6 +418,7 @@ def eval_(
     checkpoint: Literal["last", "best"] = typer.Option(
         "last", help="The weights: last (checkpoint.pt) or best (best.pt, the best validation in training)"
     ),
+    metric: str = typer.Option("lanegap", help=METRIC_HELP + "; lanegap always, cli report reads it"),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Predict a split, turn the outputs into lane graphs (the model's post-processing), write
@@ -451,22 +433,25 @@ def eval_(
     import torch
 
     from baselines.evaluate import evaluate
-    from benchmark.tables import eval_table
+    from benchmark.metric.variants import parse_metrics
+    from benchmark.tables import eval_table, finish, variant_tables
 
     with reported_errors():
+        metrics = parse_metrics(f"lanegap,{metric}")
         if device == "cuda" and not torch.cuda.is_available():
             raise ValueError(f"--device cuda: CUDA is not available to torch {torch.__version__} here")
         if not run.is_dir():
             raise ValueError(f"--run {run}: no such folder")
         if not (run / "config.json").is_file():
             raise ValueError(f"--run {run}: no config.json (expected a run folder written by cli train)")
-        metrics = evaluate(run, data, split, device, floor=floor, bootstrap=bootstrap, checkpoint=checkpoint)
-    table, notes = eval_table(metrics)
-    heading = f"{run} on {metrics['split']} of {metrics['data']}: {metrics['frames']} frames"
+        result = evaluate(run, data, split, device, floor=floor, bootstrap=bootstrap, checkpoint=checkpoint,
+                          metrics=metrics)  # fmt: skip
+    table, notes = eval_table(result)
+    others, other_notes = variant_tables(result)
+    heading = f"{run} on {result['split']} of {result['data']}: {result['frames']} frames"
     names = ("predictions.parquet", "frame_counts.parquet", "metrics.json")
-    finish(
-        metrics, [(heading, table)], [run / name for name in names if (run / name).is_file()], as_json, notes
-    )
+    wrote = [run / name for name in names if (run / name).is_file()]
+    finish(result, [(heading, table), *others], wrote, as_json, notes + other_notes)
 
 
 @app.command(short_help="Score predicted lane graphs: TOPO, Junction TOPO, mIoU")
@@ -528,6 +513,7 @@ def score(
     bootstrap: int = typer.Option(
         1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
     ),
+    metric: str = typer.Option("lanegap", help=METRIC_HELP),
 ) -> None:
     """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md);
     the JSON records the thresholds and metric_version. Predictions of `cli eval` made by a model trained
@@ -540,16 +526,18 @@ def score(
       cli score --pred runs/lanegap/predictions.parquet --gt prepared/av2
       cli score --pred pts_bbox/nuscmap_results.json --format maptrv2 --gt prepared/nusc --out runs/maptrv2
     """
+    from benchmark.metric.variants import parse_metrics
     from benchmark.score import score as run_score
-    from benchmark.tables import score_table, sweep_table
+    from benchmark.tables import finish, score_table, sweep_table, variant_tables
 
     params = dict(step=step, match_radius=match_radius, reach_radius=reach_radius, matching=matching)
     if range_:
         params["bev_range"] = range_
     with reported_errors():
+        metrics = parse_metrics(metric)
         result = run_score(
             pred, gt, out, workers=workers, bootstrap=bootstrap, split=split, fmt=format_,
-            class_name=class_name, min_score=min_score, sweep=sweep, **params,
+            class_name=class_name, min_score=min_score, sweep=sweep, metrics=metrics, **params,
         )  # fmt: skip
     where = f", split {', '.join(result['splits'])}" if result["splits"] else ", every frame"
     source = result.get("external") or {}
@@ -562,8 +550,12 @@ def score(
     else:
         heading = (f"{pred} against {gt}{where}: {result['frames']} frames scored, "
                    f"{result['frames_predicted']} predicted, {result['frames_missing']} missing")  # fmt: skip
-    table, notes = score_table(result)
-    tables = [(heading, table)]
+    tables, notes = [], []
+    if "lanegap" in metrics:
+        table, notes = score_table(result)
+        tables.append((heading, table))
+    others, other_notes = variant_tables(result)
+    tables, notes = tables + others, notes + other_notes
     if result.get("sweep"):
         tables.append(sweep_table(result))
     wrote = [out] if out is None or out.suffix.lower() == ".json" else [out / "metrics.json", out]
@@ -596,7 +588,7 @@ def roundtrip(
       cli roundtrip --data prepared/av2 --via pixel --frame-stride 10 --workers 0
     """
     from benchmark.graphs.roundtrip import roundtrip as run_roundtrip
-    from benchmark.tables import score_table
+    from benchmark.tables import finish, score_table
 
     with reported_errors():
         result = run_roundtrip(data, via, out, merge_radius, workers, frame_stride)
@@ -630,6 +622,7 @@ def report(
     bootstrap: int = typer.Option(
         1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
     ),
+    metric: str = typer.Option("lanegap", help=METRIC_HELP + "; lanegap always, the others a table each"),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """The comparison tables and pictures of finished runs (from `cli eval` and `cli roundtrip`) as
@@ -640,11 +633,14 @@ def report(
       cli report --runs runs --out report
       cli report --runs runs/lanegap --runs runs/maptr --roundtrip rt_path.json --reference paper --out report
     """
+    from benchmark.metric.variants import parse_metrics
     from benchmark.report.writer import write_report
-    from benchmark.tables import report_tables
+    from benchmark.tables import finish, report_tables
 
     with reported_errors():
-        result = write_report(runs, out, roundtrip, workers, reference=reference, draws=bootstrap)
+        metrics = parse_metrics(f"lanegap,{metric}")
+        result = write_report(runs, out, roundtrip, workers, reference=reference, draws=bootstrap,
+                              metrics=metrics)  # fmt: skip
 
     shown, tables = report_tables(result)
     summary = {"report": str(result.path), "pictures": [str(p) for p in result.pictures], "tables": tables}

@@ -133,13 +133,14 @@ def predict(built: Built, loader: DataLoader, device: torch.device, autocast_dty
 
 
 def score_predictions(
-    graphs: dict[str, LaneGraph], ground_truth: dict[str, LaneGraph], params: MetricParams, bootstrap: int
-) -> tuple[dict, np.ndarray]:
+    graphs: dict[str, LaneGraph], ground_truth: dict[str, LaneGraph], params: MetricParams, bootstrap: int,
+    metrics: tuple[str, ...] = ("lanegap",),
+) -> tuple[dict, np.ndarray]:  # fmt: skip
     """The scores of the predicted frames (by frame id) with a 95 % interval beside each F1 from
     `bootstrap` draws over them, and each frame's counts (FRAME_COUNTS, for `cli report`'s paired
-    intervals)."""
+    intervals); `metrics` adds the other published ones (benchmark/metric/variants.py)."""
     pairs = [(graphs[frame_id], ground_truth[frame_id]) for frame_id in sorted(graphs)]
-    scores, frame_counts = score_frames(pairs, params)
+    scores, frame_counts = score_frames(pairs, params, metrics=metrics)
     add_intervals(scores, frame_counts, bootstrap)
     return scores, frame_counts
 
@@ -173,11 +174,13 @@ def evaluate(
     floor: bool = True,
     bootstrap: int = DRAWS,
     checkpoint: str = "last",
+    metrics: tuple[str, ...] = ("lanegap",),
 ) -> dict:
     """Predict, post-process to lane graphs, score, and score the blind floor (`floor`,
     baselines/floor.py); returns (and writes) the metrics, with a 95 % interval beside each F1 from
     `bootstrap` draws over the frames (0: none), with the weights of `checkpoint` (last or best). The floor's
-    prior search is cached in DATA/floor_cache."""
+    prior search is cached in DATA/floor_cache. `metrics`: LaneGAP's and the other published ones chosen
+    (benchmark/metric/variants.py), each under its name in metrics.json."""
     check_draws(bootstrap)
     run_dir = Path(run_dir)
     device_ = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
@@ -199,7 +202,9 @@ def evaluate(
     # `cli score` scores every frame of the ground truth; here only the frames of this split.
     ground_truth = graphs_from_table(read_graph_table(data.path), data.path)
     metric_params = MetricParams(bev_range=data.bev_range)
-    scores, frame_counts = score_predictions(inference.graphs, ground_truth, metric_params, bootstrap)
+    scores, frame_counts = score_predictions(
+        inference.graphs, ground_truth, metric_params, bootstrap, metrics
+    )
     scores.update(
         pred=str(run_dir / "predictions.parquet"), gt=str(data.path), frames_predicted=len(inference.graphs)
     )

@@ -28,7 +28,6 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.graphs.path2graph import path2graph
 from benchmark.metric.densify import identical_points
 from pipeline import io
 from pipeline.geometry import Range, clip_polylines
@@ -282,5 +281,7 @@ def to_graphs(vectors: Vectors, frame_ids: list[str], fmt: str, dataset: str, rn
 def build_graphs(frames: list[list[np.ndarray]], fmt: str) -> list[LaneGraph]:
     """Each frame's graph from its clipped vectors: Path2Graph for MapTRv2's paths, equal points merged
     for CGNet's pieces."""
+    from benchmark.graphs.path2graph import path2graph  # loaded only where a MapTRv2 file is converted
+
     build = path2graph if fmt == "maptrv2" else merge_equal_points
     return [build(pieces) if pieces else LaneGraph.empty() for pieces in frames]

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.dataset as ds
+import pyarrow.parquet as pq
 
+from pipeline import io
 from pipeline.lane_graph import LaneGraph
 from pipeline.manifest import PreparedData
 
@@ -35,8 +36,11 @@ def read_graph_table(path: Path) -> pa.Table:
     if path.is_dir() and (path / "graphs").is_dir():
         path = path / "graphs"
     try:
-        table = ds.dataset(path, format="parquet").to_table()
-    except (pa.ArrowInvalid, OSError) as error:
+        files = io.shard_files(path) if path.is_dir() else [path]
+        tables = [pq.ParquetFile(file).read() for file in files]
+        # as a dataset scan reads them: every shard in the first one's schema
+        table = pa.concat_tables([t.cast(tables[0].schema) for t in tables]) if tables else pa.table({})
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, ValueError) as error:
         raise GraphTableError(f"{path}: not a readable Parquet graph table ({error})") from error
     missing = [c for c in COLUMNS if c not in table.column_names]
     if missing:

@@ -30,47 +30,63 @@ from benchmark.graph_table import (
 from benchmark.metric.bootstrap import FRAME_COUNTS, add_intervals, check_draws, write_frame_counts
 from benchmark.metric.params import METRIC_VERSION, MetricParams
 from benchmark.metric.totals import Totals
+from benchmark.metric.variants import VariantScores
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
 from pipeline.progress import track
 
 
-def _score_chunk(chunk: list[tuple[LaneGraph, LaneGraph]], params: MetricParams) -> Totals:
-    totals = Totals(params)
+def _score_chunk(
+    chunk: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, metrics: tuple[str, ...]
+) -> tuple[Totals, VariantScores]:
+    totals, others = Totals(params), VariantScores(metrics, params.bev_range)
     for pred, gt in chunk:
+        score_frame(totals, others, pred, gt, metrics)
+    return totals, others
+
+
+def score_frame(totals: Totals, others: VariantScores, pred: LaneGraph, gt: LaneGraph,
+                metrics: tuple[str, ...]) -> None:  # fmt: skip
+    if "lanegap" in metrics:
         totals.add_frame(pred, gt)
-    return totals
+    others.add_frame(pred, gt)
 
 
 def score_pairs(
-    pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1, bootstrap: int = 0
-) -> dict:
+    pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1, bootstrap: int = 0,
+    metrics: tuple[str, ...] = ("lanegap",),
+) -> dict:  # fmt: skip
     """The result dict for (pred, gt) graphs, one pair per frame, in `workers` processes (0: one per
-    core); with `bootstrap` draws, a 95 % interval beside each F1 (benchmark/metric/bootstrap.py)."""
-    result, counts = score_frames(pairs, params, workers)
-    return add_intervals(result, counts, bootstrap)
+    core); with `bootstrap` draws, a 95 % interval beside each LaneGAP F1 (benchmark/metric/bootstrap.py)."""
+    result, counts = score_frames(pairs, params, workers, metrics)
+    return add_intervals(result, counts, bootstrap) if "lanegap" in metrics else result
 
 
 def score_frames(
-    pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1
-) -> tuple[dict, np.ndarray]:
-    """(score_pairs' result without intervals, each pair's counts: (frames, FRAME_COLUMNS) in pair
-    order)."""
+    pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1,
+    metrics: tuple[str, ...] = ("lanegap",),
+) -> tuple[dict, np.ndarray]:  # fmt: skip
+    """(score_pairs' result without intervals, each pair's LaneGAP counts: (frames, FRAME_COLUMNS) in pair
+    order). `metrics` (benchmark/metric/variants.py): LaneGAP's at the top level, each other one under its
+    name, all scored per frame in the same workers."""
     workers = workers if workers > 0 else os.cpu_count() or 1
-    totals = Totals(params)
+    totals, others = Totals(params), VariantScores(metrics, params.bev_range)
     with track("score frames", len(pairs)) as advance:
         if workers <= 1 or len(pairs) < 2 * workers:
             for pred, gt in pairs:
-                totals.add_frame(pred, gt)
+                score_frame(totals, others, pred, gt, metrics)
                 advance()
         else:
             size = max(1, min(64, len(pairs) // (4 * workers)))
             chunks = [pairs[i : i + size] for i in range(0, len(pairs), size)]
             with ProcessPoolExecutor(workers) as pool:
-                for part in pool.map(_score_chunk, chunks, [params] * len(chunks)):
+                parts = pool.map(_score_chunk, chunks, [params] * len(chunks), [metrics] * len(chunks))
+                for chunk, (part, records) in zip(chunks, parts):
                     totals.add(part)  # exact sums: the chunking does not change a digit
-                    advance(part.frames)
-    return {**totals.result(), "metric_version": METRIC_VERSION}, totals.frame_table()
+                    others.add(records)  # in chunk order, so in pair order
+                    advance(len(chunk))
+    result = {**totals.result(), "metric_version": METRIC_VERSION} if "lanegap" in metrics else {}
+    return {**result, **others.results()}, totals.frame_table()
 
 
 def sweep_scores(pred: predictions.Predictions, gt: dict[str, LaneGraph], params: MetricParams,
@@ -105,6 +121,18 @@ def check_out(out: Path | None) -> None:
             )
 
 
+def check_metrics(metrics: tuple[str, ...], out: Path | None, sweep: bool) -> None:
+    """A run folder (`cli report` reads its LaneGAP scores) and `--sweep` (LaneGAP's F1 by kept score) need
+    LaneGAP's metric among the chosen."""
+    if "lanegap" in metrics:
+        return
+    if sweep:
+        raise GraphTableError("--sweep: it sweeps LaneGAP's F1; add lanegap to --metric")
+    if out is not None and Path(out).suffix.lower() != ".json":
+        raise GraphTableError(f"--out {out}: a run folder holds LaneGAP's scores for cli report; add lanegap "
+                              "to --metric or write a .json file")  # fmt: skip
+
+
 def write_run(run_dir: Path, graphs: dict[str, LaneGraph], frame_counts: np.ndarray, metrics: dict,
               targets: dict | None = None) -> None:  # fmt: skip
     """A run folder as `cli report` reads it: predictions.parquet (its metadata: the targets the model
@@ -123,10 +151,11 @@ def write_run(run_dir: Path, graphs: dict[str, LaneGraph], frame_counts: np.ndar
 def score(
     pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, bootstrap: int = 0,
     split: str | None = None, fmt: str = "graph", class_name: str | None = None,
-    min_score: float | None = None, sweep: bool = False, **params,
+    min_score: float | None = None, sweep: bool = False, metrics: tuple[str, ...] = ("lanegap",), **params,
 ) -> dict:  # fmt: skip
     """Score predictions against the ground truth; params are MetricParams fields; `bootstrap` draws over
-    the frames give each F1 its 95 % interval (0: none; `cli score`: DRAWS).
+    the frames give each F1 its 95 % interval (0: none; `cli score`: DRAWS). `metrics`: LaneGAP's (the
+    result's top level) and the other published ones (benchmark/metric/variants.py, each under its name).
 
     fmt "graph" (a graph table), "maptrv2" / "cgnet" (another codebase's JSON) or "auto", and which frames
     are scored for `split`: benchmark/predictions.py. `sweep` (not for graph) adds the F1 at each of
@@ -136,13 +165,16 @@ def score(
     check_draws(bootstrap)
     request = predictions.request(pred_path, fmt, class_name, min_score, sweep)
     check_out(out)
+    check_metrics(metrics, out, sweep)
     params.setdefault("bev_range", default_range(gt_path))
     metric_params = MetricParams(**params)
     gt = graphs_from_table(read_graph_table(gt_path), Path(gt_path))
     pred = predictions.read(request, Path(gt_path), gt, split, workers)
     pairs = [(pred.graphs[f], gt[f]) for f in pred.frame_ids]
-    result, frame_counts = score_frames(pairs, metric_params, workers)
-    add_intervals(result, frame_counts, bootstrap)
+    result, frame_counts = score_frames(pairs, metric_params, workers, metrics)
+    if "lanegap" in metrics:
+        add_intervals(result, frame_counts, bootstrap)
+    result.setdefault("frames", len(pairs))
     result.update(pred=str(pred_path), gt=str(gt_path), **pred.info())
     run_folder = out is not None and Path(out).suffix.lower() != ".json"
     if pred.fmt != "graph" or run_folder:  # what `cli report` says of a model that is not ours

@@ -3,9 +3,13 @@
 
 from __future__ import annotations
 
+import json
 from typing import TYPE_CHECKING
 
+import typer
+from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 if TYPE_CHECKING:
     from benchmark.report.writer import Report
@@ -156,3 +160,36 @@ def report_tables(result: Report) -> tuple[list[tuple[str, Table]], list[dict]]:
                 {"title": plain(title), "header": header, "rows": [list(map(plain, r)) for r in rows]}
             )
     return shown, tables
+
+
+def variant_tables(result: dict) -> tuple[list[tuple[str, Table]], list[str]]:
+    """The other published metrics that `--metric` added (benchmark/metric/variants.py): OpenLane-V2's
+    DET_l and TOP_ll, a (heading, table), with its notes."""
+    tables, notes = [], []
+    if "openlanev2" in result:
+        ol = result["openlanev2"]
+        table = Table("OpenLane-V2", "value", *(f"at {t} m" for t in ol["det_l_by_threshold"]))
+        table.add_row("DET_l", cell(ol["det_l"]), *map(cell, ol["det_l_by_threshold"].values()))
+        table.add_row("TOP_ll", cell(ol["top_ll"]), *map(cell, ol["top_ll_by_threshold"].values()))
+        tables.append((f"OpenLane-V2's DET_l and TOP_ll over {ol['frames']} frames, {ol['range']}", table))
+        notes += [f"OpenLane-V2 confidences: {ol['confidences']}"] + ([ol["note"]] if "note" in ol else [])
+    return tables, notes
+
+
+def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[str] = ()) -> None:
+    """A command's end: with --json its result as one JSON line on stdout (and what it wrote on stderr);
+    else its (heading, table) pairs, notes and the paths it wrote."""
+    written = f"wrote {', '.join(str(path) for path in wrote)}" if wrote else ""
+    if as_json:
+        typer.echo(json.dumps(result))
+        if written:
+            typer.echo(written, err=True)
+        return
+    console = Console()
+    one_line = not console.is_terminal  # a log keeps each line whole; a terminal wraps it between words
+    for heading, table in tables:
+        console.print(Text(heading, style="bold"), soft_wrap=one_line)  # a table title wraps at its width
+        console.print(table)
+    for line in [*notes, written]:
+        if line:
+            console.print(Text(line), soft_wrap=one_line)

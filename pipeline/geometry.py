@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 
 @dataclass(frozen=True)
@@ -54,6 +53,8 @@ def ground_height(x, y, ground_z: float, ground_slope) -> np.ndarray:
 
 def pose_matrix(rotation_wxyz, translation) -> np.ndarray:
     """4x4 rigid transform from a (w, x, y, z) quaternion and a translation."""
+    from scipy.spatial.transform import Rotation  # 0.2 s to import: loaded where a pose is built
+
     w, x, y, z = rotation_wxyz
     T = np.eye(4)
     T[:3, :3] = Rotation.from_quat([x, y, z, w]).as_matrix()
@@ -63,6 +64,8 @@ def pose_matrix(rotation_wxyz, translation) -> np.ndarray:
 
 def matrix_quaternion(T: np.ndarray) -> np.ndarray:
     """The (w, x, y, z) quaternion of a 4x4 transform's rotation, with w >= 0."""
+    from scipy.spatial.transform import Rotation
+
     x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
     q = np.array([w, x, y, z])
     return -q if w < 0 else q

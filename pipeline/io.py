@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from pipeline.errors import DataError
@@ -143,28 +142,41 @@ def same_type(a: pa.DataType, b: pa.DataType) -> bool:
 
 
 def read_table(out: Path, table: str, columns: list[str] | None = None, filter=None) -> pa.Table:
-    """One table of a prepared dataset, all shards together."""
+    """One table of a prepared dataset, all shards together (in the order of their names), cast to its
+    schema; `filter`: a pyarrow.dataset expression on its rows."""
     folder = Path(out) / table
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such table (is {out} a prepared dataset?)")
-    dataset = ds.dataset(folder, format="parquet", schema=SCHEMAS[table])
-    # the unified schema would read a column a shard lacks as nulls, and cast one of another type:
-    # refuse such shards instead
-    for fragment in dataset.get_fragments():
+    names = columns or SCHEMAS[table].names
+    paths, shards = shard_files(folder), []
+    for path in paths:
         try:
-            physical = fragment.physical_schema
+            shards.append(pq.ParquetFile(path))
+            physical = shards[-1].schema_arrow
         except pa.ArrowInvalid as error:
-            raise DataError(
-                fragment.path, "Parquet footer", "unreadable: truncated or not Parquet"
-            ) from error
-        for name in columns or SCHEMAS[table].names:
+            raise DataError(path, "Parquet footer", "unreadable: truncated or not Parquet") from error
+        # a column a shard lacks must not be read as nulls, nor one of another type cast: refuse the shard
+        for name in names:
             if name not in physical.names:
                 problem = "missing: prepared by an older version; re-run `cli prepare` with --overwrite"
-                raise DataError(fragment.path, f"column {name}", problem)
+                raise DataError(path, f"column {name}", problem)
             found, expected = physical.field(name).type, SCHEMAS[table].field(name).type
             if not same_type(found, expected):
-                raise DataError(fragment.path, f"column {name}", f"is {found}, not {expected}")
-    return dataset.to_table(columns=columns, filter=filter)
+                raise DataError(path, f"column {name}", f"is {found}, not {expected}")
+    if filter is not None:  # a dataset scan filters each shard as it reads it
+        import pyarrow.dataset as ds  # it imports pandas (0.2 s): loaded only where a filter asks for it
+
+        scan = ds.dataset([str(path) for path in paths], format="parquet", schema=SCHEMAS[table])
+        return scan.to_table(columns=columns, filter=filter)
+    schema = pa.schema([SCHEMAS[table].field(name) for name in names])
+    tables = [shard.read(columns=names).cast(schema) for shard in shards]
+    return pa.concat_tables(tables) if tables else schema.empty_table()
+
+
+def shard_files(folder: Path) -> list[Path]:
+    """The Parquet files of a folder of shards, as pyarrow's datasets find them: by name, hidden
+    (`.`, `_`) ones left out (an atomic write's temporary file)."""
+    return sorted(p for p in Path(folder).glob("*.parquet") if not p.name.startswith((".", "_")))
 
 
 def count_rows(out: Path, table: str) -> int:

@@ -73,8 +73,11 @@ def test_eval_and_resume_need_no_pretrained_file(tmp_path):
     run = tmp_path / "run"
     train(config, data, run)
     weights.rename(tmp_path / "elsewhere.pth")
-    metrics = evaluate(run, data, "train", "cpu", floor=False, bootstrap=0)
+    metrics = evaluate(run, data, "train", "cpu", floor=False, bootstrap=0, metrics=("lanegap", "openlanev2"))
     assert metrics["frames"] == 2 and metrics["precision"] == "fp32"
+    # --metric: the other metric under its name in metrics.json, beside LaneGAP's
+    written = json.loads((run / "metrics.json").read_text())
+    assert written["openlanev2"]["frames"] == 2 and "directed" in written
     table, notes = eval_table(metrics)
     assert any(note.startswith("fps: batch 1 on cpu in fp32") for note in notes)
     resumed = load_config(run / "config.json")

@@ -48,6 +48,7 @@ from benchmark.report.paper_tables import (
 from benchmark.report.reference import ReferenceTable
 from benchmark.report.runs import VALIDATION_FILE, Block, Run, percent, shown
 from benchmark.report.summary import summary
+from benchmark.report.variant_tables import variant_sections
 from pipeline.geometry import Range
 from pipeline.splits.geographic import draw_dataset_splits
 from pipeline.splits.leakage import leakage_line
@@ -95,6 +96,7 @@ class Sections:
     grids: dict[str, tuple[int, int]] = field(default_factory=dict)
     placed: set[str] = field(default_factory=set)  # labels of the paper's tables shown
     shown_references: list[list[tuple[str, list[str], list[list[str]]]]] = field(default_factory=list)
+    metrics: tuple[str, ...] = ("lanegap",)  # `cli report --metric`: the other metrics' tables
 
     def picture(self, figure, name: str) -> None:
         self.pictures.append(figures.save_png(figure, self.out / name))
@@ -255,6 +257,7 @@ def block_sections(index: int, block: Block, doc: Sections) -> list[str]:
     md += ablation_sections(block, doc)
     if block.data is None:
         return md + ["The data folder was not found: no scores by junction count and no frame grid.", ""]
+    md += variant_sections(block, doc.metrics, doc.workers)
     md += junction_sections(block, slug, doc)
     return md + f1_section(block, slug, doc) + splits_section(block, slug, doc)
 

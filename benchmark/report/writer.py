@@ -47,10 +47,11 @@ class Report:
 
 def write_report(
     runs: list[Path], out: Path, roundtrips: list[Path] = (), workers: int = 1, reference: str | None = None,
-    draws: int = bootstrap.DRAWS,
+    draws: int = bootstrap.DRAWS, metrics: tuple[str, ...] = ("lanegap",),
 ) -> Report:  # fmt: skip
     """Write out/report.md and the PNGs it links; returns what was written. `reference="paper"` places
-    the paper's tables beside the measured ones; `draws`: bootstrap draws of the intervals (0: none)."""
+    the paper's tables beside the measured ones; `draws`: bootstrap draws of the intervals (0: none);
+    `metrics` beyond lanegap: a table per other published metric (benchmark/report/variant_tables.py)."""
     out = Path(out)
     bootstrap.check_draws(draws)
     refs = load_reference(reference) if reference else {}
@@ -61,7 +62,7 @@ def write_report(
             if draws and run.counts is not None:
                 run.intervals = bootstrap.intervals(run.counts, draws)
     out.mkdir(parents=True, exist_ok=True)
-    doc = Sections(out, refs, workers)
+    doc = Sections(out, refs, workers, metrics=metrics)
     md = introduction(blocks, draws, doc)
     for index, block in enumerate(blocks, 1):
         md += block_sections(index, block, doc)

@@ -1,0 +1,394 @@
+"""The `openlanev2` metric variant: OpenLane-V2's DET_l and TOP_ll (v1.1+) of lane graphs cut into lanes at
+their junctions (lanes_of), one frame's contribution (openlanev2_frame) and the scores (openlanev2_result)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numba
+import numpy as np
+
+from benchmark.metric.densify import identical_points, unique_edges
+from pipeline.geometry import Range, resample_polylines
+from pipeline.lane_graph import LaneGraph
+from pipeline.pieces import graph_to_pieces
+
+# The definition, as OpenLane-V2's `openlanev2/centerline/evaluation/` computes it (docs/METRICS.md says where
+# it differs from our TOPO):
+#
+# - Lanes. Each piece of a graph (Graph2Piece's chain between junctions; a junction-free cycle is one closed
+#   piece) is a lane of `points` points, even by arc length, its own first and last points kept; lane j is a
+#   successor of lane i when it starts where i ends. A predicted lane's confidence is its score where the
+#   format carries one, else 1.0; a predicted link has confidence 1.0.
+# - Distance. The discrete Fréchet distance of every (GT, predicted) pair, times the GT lane's relaxation
+#   max(relax_floor, 1 - relax_rate * d), d its point nearest to the ego origin.
+# - Matching at threshold t. Predictions in decreasing confidence: one whose nearest GT lane (the first on
+#   ties) is closer than t is a true positive if that lane is not taken yet, else a false positive; a
+#   prediction never falls back to its second-nearest GT lane.
+# - DET_l. Over all frames, predictions in decreasing confidence: recall (in float32, as there) and
+#   precision; the AP is the mean over the recall steps 0, 0.1, ..., 1.0 (np.arange's floats) of the best
+#   precision at a recall >= the step, 0 where none; DET_l is the mean of the AP at t = 1, 2, 3 m. No lane at
+#   all on either side: AP 1.
+# - TOP_ll. Per threshold and frame with GT lanes: the predicted adjacency carried over onto the GT lanes
+#   through the matching; a GT entry no matched pair covers is 0 where the GT has a link and a false link
+#   of confidence 0.5 + float32 eps where it has none. Each GT lane's row (successors) and column
+#   (predecessors) gives an AP: the predicted entries above 0.5 ranked by confidence, the sum of the
+#   precision at each true one over the number of true ones (1 when both sides are empty, 0 when one is).
+#   TOP_ll is the mean of all those APs over the thresholds and frames.
+# - Ties (equal confidences). `ties="threshold"` (the default) makes equal confidences one threshold of the
+#   curve (precision and recall are read where the tie ends), so no score depends on the order of lanes or
+#   frames, and with every confidence 1.0 each AP is one point of its curve. `ties="order"` walks them in
+#   lane order, frame by frame: the reference's answer wherever numpy's argsort keeps ties in order (its
+#   default sort does not promise to: on AVX-512 machines it reorders them). The matching always gives a
+#   GT lane to the lowest-index prediction among equals.
+
+# Recorded in every result: bump it whenever a change can move any digit of DET_l or TOP_ll.
+OPENLANEV2_VERSION = 1
+
+# The recall steps of the 11-point AP, exactly the floats OpenLane-V2 compares with (0.30000000000000004,
+# 0.7000000000000001, ...): recall is rounded to float32 first, as there, so a recall of exactly 0.7 falls
+# short of its step while 0.3 reaches its own.
+RECALL_STEPS = np.arange(0.0, 1.0 + 1e-3, 0.1)
+# A predicted link counts when its confidence is above this (THRESHOLD_RELATIONSHIP_CONFIDENCE).
+RELATIONSHIP_THRESHOLD = 0.5
+# A GT non-link that no matched pair of predictions covers becomes a false link of this confidence.
+UNCOVERED_CONFIDENCE = 0.5 + float(np.finfo(np.float32).eps)
+
+NO_SCORE = "1.0 for every lane (the format carries no score)"
+SCORED = "the prediction's scores"
+
+
+@dataclass(frozen=True)
+class OpenLaneV2Params:
+    """Every constant of DET_l and TOP_ll, recorded in each result."""
+
+    thresholds: tuple[float, ...] = (1.0, 2.0, 3.0)  # Fréchet distance thresholds, metres (DET_l averages)
+    points: int = 11  # points per lane, even by arc length
+    relax_rate: float = 5e-3  # the distance's relaxation: max(relax_floor, 1 - relax_rate * ego distance)
+    relax_floor: float = 0.5
+    ties: str = "threshold"  # equal confidences: "threshold" (one point of the curve) or "order" (lane order)
+    bev_range: str = "30x60"  # the perception range the graphs were cut to (recorded, not applied)
+
+    def __post_init__(self) -> None:
+        if not self.thresholds or not all(t > 0 for t in self.thresholds):
+            raise ValueError(f"thresholds must be positive, not {self.thresholds}")
+        if self.points < 2:
+            raise ValueError(f"points must be at least 2, not {self.points}")
+        if self.ties not in ("threshold", "order"):
+            raise ValueError(f"ties must be 'threshold' or 'order', not {self.ties!r}")
+        Range.parse(self.bev_range)
+
+    def to_dict(self) -> dict:
+        out = asdict(self)
+        out["thresholds"] = list(self.thresholds)
+        return out
+
+    @classmethod
+    def from_dict(cls, values: dict) -> OpenLaneV2Params:
+        return cls(**{**values, "thresholds": tuple(values["thresholds"])})
+
+
+@dataclass
+class Lanes:
+    """A graph's lanes in OpenLane-V2's form."""
+
+    points: np.ndarray  # (L, points, 2) float64, metres in the BEV frame
+    adjacency: np.ndarray  # (L, L) float64: 1.0 where lane j starts where lane i ends, else 0.0
+    confidence: np.ndarray  # (L,) float64
+
+    @property
+    def n(self) -> int:
+        return len(self.points)
+
+
+# ---------------------------------------------------------------------------------------------------
+# The conversion
+
+
+def clean_graph(graph: LaneGraph) -> tuple[LaneGraph, np.ndarray]:
+    """The graph with points at identical coordinates made one vertex (at the first one), self-loops and
+    repeated edges dropped, edges sorted by (src, dst), as the TOPO metric reads a graph; and for each
+    input edge its edge in the result (-1 for a self-loop)."""
+    xy = np.stack([np.asarray(graph.x, np.float64), np.asarray(graph.y, np.float64)], axis=1)
+    if len(xy):
+        vertex, n = identical_points(xy)
+    else:
+        vertex, n = np.zeros(0, np.int64), 0
+    first = np.empty(n, np.int64)
+    first[vertex[::-1]] = np.arange(len(xy))[::-1]
+    src, dst = vertex[np.asarray(graph.src, np.int64)], vertex[np.asarray(graph.dst, np.int64)]
+    edges = unique_edges(LaneGraph(xy[first, 0], xy[first, 1], src, dst), directed=True)
+    key = edges[:, 0] * max(n, 1) + edges[:, 1]
+    edge_of = np.where(src != dst, np.searchsorted(key, src * max(n, 1) + dst), -1)
+    return LaneGraph(xy[first, 0], xy[first, 1], edges[:, 0], edges[:, 1]), edge_of
+
+
+def lanes_of(graph: LaneGraph, points: int = 11, scores=None) -> Lanes:
+    """The lanes of a graph: its pieces between junctions (pipeline.pieces.graph_to_pieces, in that order),
+    each resampled to `points` points evenly by arc length with its first and last points kept, lane j a
+    successor of lane i when it starts at the vertex where i ends.
+
+    `scores`, if given, has one score per edge of `graph` (its src / dst order); a lane's confidence is the
+    mean of its edges' scores (a repeated edge: the higher one). Without it every confidence is 1.0.
+    Points at identical coordinates are one vertex and self-loops and repeated edges are dropped first,
+    as the TOPO metric reads a graph; isolated vertices are no lane.
+    """
+    if scores is not None:
+        scores = np.asarray(scores, np.float64)
+        if scores.shape != (len(graph.src),):
+            raise ValueError(f"scores: one per edge ({len(graph.src)}) is needed, not shape {scores.shape}")
+    clean, edge_of = clean_graph(graph)
+    n = max(len(clean.x), 1)
+    pieces = graph_to_pieces(clean)
+    lanes = len(pieces.chains)
+    adjacency = np.zeros((lanes, lanes))
+    adjacency[pieces.link_src, pieces.link_dst] = 1.0
+    if not lanes:
+        return Lanes(np.zeros((0, points, 2)), adjacency, np.zeros(0))
+    ids = np.concatenate(pieces.chains)
+    offsets = np.concatenate([[0], np.cumsum([len(c) for c in pieces.chains])])
+    xy = np.stack([clean.x[ids], clean.y[ids]], axis=1)
+    resampled, _ = resample_polylines(np.ascontiguousarray(xy), offsets, points)
+    confidence = np.ones(lanes)
+    if scores is not None:
+        edge_score = np.full(len(clean.src), -np.inf)
+        np.maximum.at(edge_score, edge_of[edge_of >= 0], scores[edge_of >= 0])
+        # the edges of each chain: consecutive vertex pairs, found among the sorted clean edges
+        inner = np.ones(len(ids), bool)
+        inner[offsets[1:] - 1] = False
+        key = clean.src.astype(np.int64) * n + clean.dst
+        along = np.searchsorted(key, ids[:-1][inner[:-1]] * n + ids[1:][inner[:-1]])
+        lane = np.repeat(np.arange(lanes), np.diff(offsets) - 1)
+        confidence = np.bincount(lane, edge_score[along], lanes) / np.bincount(lane, minlength=lanes)
+    return Lanes(resampled, adjacency, confidence)
+
+
+def relaxation(gt: Lanes, params: OpenLaneV2Params) -> np.ndarray:
+    """Each GT lane's factor on its distances: max(relax_floor, 1 - relax_rate * its distance to the ego)."""
+    if not gt.n:
+        return np.zeros(0)
+    ego = np.sqrt(gt.points[..., 0] * gt.points[..., 0] + gt.points[..., 1] * gt.points[..., 1]).min(axis=1)
+    return np.maximum(params.relax_floor, 1.0 - params.relax_rate * ego)
+
+
+# ---------------------------------------------------------------------------------------------------
+# The kernels
+
+
+@numba.njit(cache=True)
+def _point_distance(a, b):
+    dx, dy = a[0] - b[0], a[1] - b[1]
+    return np.sqrt(dx * dx + dy * dy)
+
+
+@numba.njit(cache=True)
+def nearest_lanes(gt, pred, factor, bound):
+    """For each predicted lane, the GT lane at the smallest relaxed discrete Fréchet distance (the first
+    on ties) and that distance; (-1, inf) when none is below `bound`.
+
+    Pairs that cannot come below `bound` or the best so far are cut short, without changing the answer:
+    the distance is at least that of the two first points and of the two last points (any coupling
+    pairs them), and at least the smallest value of each row of the dynamic programme (any coupling
+    crosses every row).
+    """
+    n_pred, n_points = pred.shape[0], pred.shape[1]
+    nearest = np.full(n_pred, -1, np.int64)
+    best = np.full(n_pred, np.inf)
+    row = np.empty(gt.shape[1])
+    for p in range(n_pred):
+        for g in range(gt.shape[0]):
+            limit = min(bound, best[p])
+            ends = max(_point_distance(pred[p, 0], gt[g, 0]), _point_distance(pred[p, -1], gt[g, -1]))
+            if ends * factor[g] >= limit:
+                continue
+            # discrete Fréchet (Eiter and Mannila): row i of ca[i, j] = max(min(three before), d(i, j))
+            row[0] = _point_distance(pred[p, 0], gt[g, 0])
+            for j in range(1, gt.shape[1]):
+                row[j] = max(row[j - 1], _point_distance(pred[p, 0], gt[g, j]))
+            cut = False
+            for i in range(1, n_points):
+                diagonal = row[0]
+                row[0] = max(row[0], _point_distance(pred[p, i], gt[g, 0]))
+                smallest = row[0]
+                for j in range(1, gt.shape[1]):
+                    up = row[j]
+                    row[j] = max(min(up, row[j - 1], diagonal), _point_distance(pred[p, i], gt[g, j]))
+                    diagonal = up
+                    smallest = min(smallest, row[j])
+                if smallest * factor[g] >= limit:
+                    cut = True
+                    break
+            if cut:
+                continue
+            distance = row[gt.shape[1] - 1] * factor[g]
+            if distance < best[p]:
+                best[p], nearest[p] = distance, g
+    return nearest, best
+
+
+@numba.njit(cache=True)
+def greedy_match(order, nearest, best, threshold, n_gt):
+    """The predictions in `order`: each whose nearest GT lane is closer than `threshold` takes it if it
+    is free (a true positive), else it is a false positive. Returns (tp, the GT lane of each tp or -1)."""
+    tp = np.zeros(len(nearest), np.bool_)
+    match = np.full(len(nearest), -1, np.int64)
+    taken = np.zeros(n_gt, np.bool_)
+    for i in order:
+        if best[i] < threshold and not taken[nearest[i]]:
+            taken[nearest[i]] = True
+            tp[i] = True
+            match[i] = nearest[i]
+    return tp, match
+
+
+@numba.njit(cache=True)
+def lane_aps(truth, confidence, threshold, grouped):
+    """Each row's AP: the columns with `truth` against those with `confidence` above `threshold`, ranked
+    by decreasing confidence (ties in column order): the sum of the precision at each true one over
+    their number; 1 when both are empty, 0 when one is. `grouped`: a tie is read where it ends."""
+    out = np.empty(truth.shape[0])
+    for i in range(truth.shape[0]):
+        n_true = 0
+        for j in range(truth.shape[1]):
+            n_true += truth[i, j]
+        picked = np.flatnonzero(confidence[i] > threshold)
+        if n_true == 0 or len(picked) == 0:
+            out[i] = 1.0 if n_true == len(picked) else 0.0
+            continue
+        score = confidence[i][picked]
+        order = np.argsort(-score, kind="mergesort")
+        hits, pending, total = 0, 0, 0.0
+        for k in range(len(order)):
+            hit = truth[i, picked[order[k]]]
+            hits += hit
+            if not grouped:
+                if hit:
+                    total += hits / (k + 1)
+                continue
+            pending += hit
+            if k + 1 == len(order) or score[order[k + 1]] != score[order[k]]:
+                total += pending * (hits / (k + 1))
+                pending = 0
+        out[i] = total / n_true
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# A frame and a set of frames
+
+
+def openlanev2_frame(
+    pred: LaneGraph, gt: LaneGraph, params: OpenLaneV2Params | None = None, pred_scores=None
+) -> dict:
+    """What one frame contributes (picklable): per threshold, each prediction's true-positive flag with its
+    confidence (DET_l) and the AP of each GT lane's successors and predecessors (TOP_ll; none when the
+    frame has no GT lane). `pred_scores`: one score per edge of `pred` (lanes_of), else confidences 1.0."""
+    params = params or OpenLaneV2Params()
+    p, g = lanes_of(pred, params.points, pred_scores), lanes_of(gt, params.points)
+    nearest, best = nearest_lanes(g.points, p.points, relaxation(g, params), max(params.thresholds))
+    order = np.argsort(-p.confidence, kind="stable")
+    truth = g.adjacency.astype(np.int64)
+    grouped = params.ties == "threshold"
+    tp = np.zeros((len(params.thresholds), p.n), bool)
+    aps = np.zeros((len(params.thresholds), 2 * g.n))
+    for k, threshold in enumerate(params.thresholds):
+        tp[k], match = greedy_match(order, nearest, best, threshold, g.n)
+        if not g.n:
+            continue
+        # the predicted adjacency on the GT lanes, through the matching; uncovered entries as there
+        carried = (1.0 - g.adjacency) * UNCOVERED_CONFIDENCE
+        matched = np.flatnonzero(match >= 0)
+        carried[np.ix_(match[matched], match[matched])] = p.adjacency[np.ix_(matched, matched)]
+        aps[k, : g.n] = lane_aps(truth, carried, RELATIONSHIP_THRESHOLD, grouped)
+        aps[k, g.n :] = lane_aps(
+            np.ascontiguousarray(truth.T), np.ascontiguousarray(carried.T), RELATIONSHIP_THRESHOLD, grouped
+        )
+    return {
+        "n_gt": g.n,
+        "confidence": p.confidence,
+        "tp": tp,
+        "lane_aps": aps,
+        "scored": pred_scores is not None,
+        "params": params.to_dict(),
+    }
+
+
+def average_precision(confidence: np.ndarray, tp: np.ndarray, n_gt: int, grouped: bool) -> float:
+    """The 11-point AP of predictions (confidence, tp flag) against n_gt GT lanes, walked in decreasing
+    confidence (ties in the given order; `grouped`: a tie is one point of the curve)."""
+    if not len(tp):
+        return 1.0 if n_gt == 0 else 0.0
+    order = np.argsort(-confidence, kind="stable")
+    hits = np.cumsum(tp[order])
+    count = np.arange(1, len(tp) + 1)
+    if grouped:
+        ranked = confidence[order]
+        ends = np.flatnonzero(np.append(ranked[1:] != ranked[:-1], True))
+        hits, count = hits[ends], count[ends]
+    recall = (hits / max(n_gt, 1)).astype(np.float32).astype(np.float64)  # float32, as there
+    best_after = np.maximum.accumulate((hits / count)[::-1])[::-1]  # best precision from each point on
+    first = np.searchsorted(recall, RECALL_STEPS, "left")  # recall never falls along the walk
+    total = 0.0
+    for at in first:
+        total += best_after[at] if at < len(recall) else 0.0
+    return total / len(RECALL_STEPS)
+
+
+def _range_text(bev_range: str) -> str:
+    r = Range.parse(bev_range)
+    return (
+        f"lanes inside this project's perception range {bev_range} m (x {r.x_min:g}..{r.x_max:g} m across, "
+        f"y {r.y_min:g}..{r.y_max:g} m along the driving direction); OpenLane-V2 evaluates 100 x 50 m "
+        "(+-50 m along, +-25 m across)"
+    )
+
+
+def openlanev2_result(frames: list[dict]) -> dict:
+    """DET_l and TOP_ll over the frames (openlanev2_frame's dicts, in frame order), JSON-able."""
+    params = [f["params"] for f in frames]
+    if any(p != params[0] for p in params):
+        raise ValueError("the frames were computed with different OpenLaneV2Params")
+    params = OpenLaneV2Params.from_dict(params[0]) if params else OpenLaneV2Params()
+    grouped = params.ties == "threshold"
+    confidence = np.concatenate([f["confidence"] for f in frames] or [np.zeros(0)])
+    n_gt = sum(f["n_gt"] for f in frames)
+    det, top, lane_aps = {}, {}, []
+    for k, threshold in enumerate(params.thresholds):
+        tp = np.concatenate([f["tp"][k] for f in frames] or [np.zeros(0, bool)])
+        det[str(float(threshold))] = average_precision(confidence, tp, n_gt, grouped)
+        aps = np.concatenate([f["lane_aps"][k] for f in frames] or [np.zeros(0)])
+        top[str(float(threshold))] = math.fsum(aps) / len(aps) if len(aps) else 0.0
+        lane_aps.append(aps)
+    every = np.concatenate(lane_aps)
+    scored = sum(f["scored"] for f in frames)
+    result = {
+        "det_l": math.fsum(det.values()) / len(det),
+        "top_ll": math.fsum(every) / len(every) if len(every) else 0.0,
+        "det_l_by_threshold": det,
+        "top_ll_by_threshold": top,
+        "frames": len(frames),
+        "frames_with_gt_lanes": sum(1 for f in frames if f["n_gt"]),
+        "lanes": {"pred": len(confidence), "gt": n_gt},
+        "confidences": NO_SCORE if not scored else SCORED if scored == len(frames) else
+        f"{SCORED} where given ({scored} of {len(frames)} frames), 1.0 for every lane elsewhere",
+        "range": _range_text(params.bev_range),
+        "params": params.to_dict(),
+        "version": OPENLANEV2_VERSION,
+    }  # fmt: skip
+    if note := _note(confidence, grouped):
+        result["note"] = note
+    return result
+
+
+def _note(confidence: np.ndarray, grouped: bool) -> str | None:
+    """What a reader must know when the predictions carry no ranking."""
+    if not len(confidence) or not (confidence == 1.0).all():
+        return None
+    if grouped:
+        return (
+            "every lane's confidence is 1.0: each AP is a single point of its precision-recall curve "
+            "(DET_l: the final precision at each recall step reached; TOP_ll: each lane's link precision "
+            "times recall), not the area under a ranked curve"
+        )
+    return "every lane's confidence is 1.0: ties are walked in lane order, so DET_l depends on that order"

@@ -134,6 +134,7 @@ bench: $(STAMP)
 	$(PY) -m tools.bench_loader
 	$(PY) -m tools.bench_splits
 	$(PY) -m tools.bench_openlanev2
+	$(PY) -m tools.bench_cgnet
 
 bench-train: $(STAMP)
 	$(PY) -m tools.bench_train

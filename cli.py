@@ -44,8 +44,8 @@ PRESET_DEFAULTS = {  # the presets' values of the `cli train` options that defau
 }
 PATH_POINTS = Literal[10, 20, 30, 40]  # the paper's counts of points per path (Tab. 8)
 JSON_HELP = "Print the result as one JSON line instead of the tables (for scripts)"
-METRIC_HELP = ("lanegap (TOPO and Junction TOPO, ours), openlanev2 (OpenLane-V2's DET_l, TOP_ll): "
-               "comma-separated, each under its name in the result (docs/METRICS.md)")  # fmt: skip
+METRIC_HELP = ("lanegap (TOPO and Junction TOPO, ours), cgnet (CGNet's evaluator), openlanev2 (DET_l, "
+               "TOP_ll): comma-separated, each under its name in the result (docs/METRICS.md)")  # fmt: skip
 
 
 @contextmanager

@@ -163,9 +163,16 @@ def report_tables(result: Report) -> tuple[list[tuple[str, Table]], list[dict]]:
 
 
 def variant_tables(result: dict) -> tuple[list[tuple[str, Table]], list[str]]:
-    """The other published metrics that `--metric` added (benchmark/metric/variants.py): OpenLane-V2's
-    DET_l and TOP_ll, a (heading, table), with its notes."""
+    """The other published metrics that `--metric` added (benchmark/metric/variants.py): CGNet's GEO, TOPO
+    and JTOPO, OpenLane-V2's DET_l and TOP_ll, each a (heading, table), with their notes."""
     tables, notes = [], []
+    if "cgnet" in result:
+        cgnet = result["cgnet"]
+        table = Table("CGNet metric", "precision", "recall", "F1")
+        for name, key in (("GEO", "geo"), ("TOPO", "topo"), ("JTOPO", "jtopo")):
+            table.add_row(name, *(cell(cgnet[key][k]) for k in ("precision", "recall", "f1")))
+        tables.append((f"CGNet's evaluator: per-frame scores averaged over {cgnet['frames']} frames", table))
+        notes += [cgnet["note"]] if "note" in cgnet else []
     if "openlanev2" in result:
         ol = result["openlanev2"]
         table = Table("OpenLane-V2", "value", *(f"at {t} m" for t in ol["det_l_by_threshold"]))

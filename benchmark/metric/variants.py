@@ -1,11 +1,11 @@
-"""The published lane-graph metrics that `--metric` chooses among: LaneGAP's (ours, totals.py) and
-OpenLane-V2's DET_l / TOP_ll (openlanev2.py), each scored per frame and gathered in frame order."""
+"""The published lane-graph metrics that `--metric` chooses among: LaneGAP's (ours, totals.py), CGNet's
+(cgnet.py) and OpenLane-V2's DET_l / TOP_ll (openlanev2.py), each scored per frame, gathered in order."""
 
 from __future__ import annotations
 
 from pipeline.lane_graph import LaneGraph
 
-METRICS = ("lanegap", "openlanev2")
+METRICS = ("lanegap", "cgnet", "openlanev2")
 OTHERS = METRICS[1:]
 
 
@@ -20,6 +20,10 @@ def parse_metrics(text: str, option: str = "--metric") -> tuple[str, ...]:
 # Each variant's module is imported where it is first used: a score under one metric loads no other.
 def variant_frame(name: str, pred: LaneGraph, gt: LaneGraph, bev_range: str) -> dict:
     """What one frame contributes to the variant `name` (picklable: computed in the scoring workers)."""
+    if name == "cgnet":
+        from benchmark.metric.cgnet import CGNetParams, cgnet_frame
+
+        return cgnet_frame(pred, gt, CGNetParams())
     from benchmark.metric.openlanev2 import OpenLaneV2Params, openlanev2_frame
 
     return openlanev2_frame(pred, gt, OpenLaneV2Params(bev_range=bev_range))
@@ -27,6 +31,10 @@ def variant_frame(name: str, pred: LaneGraph, gt: LaneGraph, bev_range: str) -> 
 
 def variant_result(name: str, frames: list[dict]) -> dict:
     """The variant's scores over the frames' records, with its parameters and version."""
+    if name == "cgnet":
+        from benchmark.metric.cgnet import cgnet_result
+
+        return cgnet_result(frames)
     from benchmark.metric.openlanev2 import openlanev2_result
 
     return openlanev2_result(frames)
@@ -51,4 +59,18 @@ class VariantScores:
             self.records[name] += other.records[name]
 
     def results(self) -> dict[str, dict]:
-        return {name: variant_result(name, self.records[name]) for name in self.names}
+        results = {name: variant_result(name, self.records[name]) for name in self.names}
+        if "cgnet" in results and wider_than_cgnet(self.bev_range):
+            results["cgnet"]["note"] = (
+                f"the data's range is {self.bev_range}: CGNet's evaluator keeps x in [-15, 15), "
+                "y in [-30, 30) m, and drops the lanes beyond, as CGNet does"
+            )
+        return results
+
+
+def wider_than_cgnet(bev_range: str) -> bool:
+    """Whether the range reaches beyond the fixed box of CGNet's evaluator (30 x 60 m)."""
+    from pipeline.geometry import Range
+
+    r = Range.parse(bev_range)
+    return r.x_min < -15 or r.x_max > 15 or r.y_min < -30 or r.y_max > 30

@@ -9,18 +9,24 @@ from benchmark.report.runs import Block
 from benchmark.score import score_frames
 from pipeline.lane_graph import LaneGraph
 
-TITLES = {"openlanev2": "OpenLane-V2's DET_l and TOP_ll"}
+TITLES = {"cgnet": "CGNet's metric (its evaluator: GEO, TOPO, JTOPO)",
+          "openlanev2": "OpenLane-V2's DET_l and TOP_ll"}  # fmt: skip
 NOTE = ("Computed here, not read from metrics.json: each run's predictions.parquet scored under the metric "
         "as its own codebase defines it (docs/METRICS.md), on the frames of the main table. The paper's "
         "published rows stand beside LaneGAP's metric only, the one they were measured with.")  # fmt: skip
 
 
 def header(metric: str) -> list[str]:
+    if metric == "cgnet":
+        return ["run", *(f"{name} {part}" for name in ("GEO", "TOPO", "JTOPO") for part in ("P", "R", "F1"))]
     return ["run", "DET_l", "TOP_ll"]
 
 
 def row(metric: str, result: dict) -> list[str]:
     """A run's cells in %, as the main table writes its scores."""
+    if metric == "cgnet":  # None: no frame had a number (CGNet's NaN skipped)
+        return ["–" if result[name][part] is None else f"{100 * result[name][part]:.1f}"
+                for name in ("geo", "topo", "jtopo") for part in ("precision", "recall", "f1")]  # fmt: skip
     return [f"{100 * result['det_l']:.1f}", f"{100 * result['top_ll']:.1f}"]
 
 

@@ -68,13 +68,13 @@ def _flat(
     if column.null_count:
         row = int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0])
         raise GraphTableError(f"{path}: frame {frame_ids[row]}: {name} is null")
-    offsets = column.offsets.to_numpy().astype(np.int64)
+    offsets = io.numbers(column.offsets).astype(np.int64)
     if column.values.null_count:
         at = np.flatnonzero(column.values.is_null().to_numpy(zero_copy_only=False))[0]
         raise GraphTableError(
             f"{path}: frame {frame_ids[np.searchsorted(offsets, at, 'right') - 1]}: null in {name}"
         )
-    values = column.values.to_numpy(zero_copy_only=False).astype(dtype)
+    values = io.numbers(column.values).astype(dtype)
     return values[offsets[0] : offsets[-1]], offsets - offsets[0]
 
 

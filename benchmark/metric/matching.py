@@ -7,8 +7,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import maximum_bipartite_matching
 
 from benchmark.metric.candidates import Candidates
 
@@ -44,6 +42,9 @@ class Matching:
 
 def optimal_partners(cand_a: np.ndarray, cand_b: np.ndarray, n_a: int, n_b: int) -> np.ndarray:
     """Partner of each a (-1: none) in a maximum-cardinality matching (Hopcroft-Karp)."""
+    from scipy.sparse import csr_matrix  # 0.1 s to import: loaded only for --matching optimal
+    from scipy.sparse.csgraph import maximum_bipartite_matching
+
     graph = csr_matrix((np.ones(len(cand_a)), (cand_a, cand_b)), shape=(n_a, n_b))
     return np.asarray(maximum_bipartite_matching(graph, perm_type="column"), np.int64)
 

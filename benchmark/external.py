@@ -223,18 +223,35 @@ def frame_ids_of(tokens: list[str], gt_path: Path, path: Path) -> tuple[list[str
 def merge_equal_points(pieces: list[np.ndarray]) -> LaneGraph:
     """CGNet's graph of its snapped pieces: points at exactly equal coordinates are one vertex, each piece's
     consecutive points an edge; self-loops and repeated edges dropped."""
-    pieces = [p for p in pieces if len(p) >= 2]
+    return merge_equal_points_scored(pieces, None)[0]
+
+
+def merge_equal_points_scored(pieces: list[np.ndarray], scores=None) -> tuple[LaneGraph, np.ndarray]:
+    """(merge_equal_points' graph, each of its edges' score): the score of the piece it came from, the
+    highest where pieces repeat it (`scores`: one per piece; None: every score 0.0)."""
+    piece_score = np.zeros(len(pieces)) if scores is None else np.asarray(scores, np.float64)
+    if piece_score.shape != (len(pieces),):
+        raise ValueError(f"scores: one per piece ({len(pieces)}) is needed, not shape {piece_score.shape}")
+    long = [i for i, p in enumerate(pieces) if len(p) >= 2]
+    pieces, piece_score = [pieces[i] for i in long], piece_score[long]
     if not pieces:
-        return LaneGraph.empty()
+        return LaneGraph.empty(), np.zeros(0)
     xy = np.concatenate(pieces) + 0.0  # no -0.0
     vertex, n = identical_points(xy)
     first = np.full(n, len(xy))
     np.minimum.at(first, vertex, np.arange(len(xy)))
+    sizes = np.array([len(p) for p in pieces])
     is_last = np.zeros(len(xy), bool)
-    is_last[np.cumsum([len(p) for p in pieces]) - 1] = True
-    src, dst = vertex[:-1][~is_last[:-1]], vertex[1:][~is_last[:-1]]
-    key = np.unique((src * n + dst)[src != dst])
-    return LaneGraph(xy[first, 0], xy[first, 1], (key // n).astype(np.int32), (key % n).astype(np.int32))
+    is_last[np.cumsum(sizes) - 1] = True
+    inner = ~is_last[:-1]
+    src, dst = vertex[:-1][inner], vertex[1:][inner]
+    edge_score = np.repeat(piece_score, sizes)[:-1][inner]
+    real = src != dst
+    key, edge_of = np.unique((src * n + dst)[real], return_inverse=True)
+    best = np.full(len(key), -np.inf)
+    np.maximum.at(best, edge_of.ravel(), edge_score[real])
+    graph = LaneGraph(xy[first, 0], xy[first, 1], (key // n).astype(np.int32), (key % n).astype(np.int32))
+    return graph, best
 
 
 @dataclass
@@ -242,12 +259,13 @@ class Converted:
     graphs: dict[str, LaneGraph]  # by frame id, every sample of the file (empty where nothing was kept)
     kept: int  # vectors above the score
     clipped: int  # their points outside the range
+    edge_scores: dict[str, np.ndarray]  # by frame id, each graph edge's score (its src / dst order)
 
 
 def to_graphs(vectors: Vectors, frame_ids: list[str], fmt: str, dataset: str, rng: Range, min_score: float,
               workers: int = 1) -> Converted:  # fmt: skip
-    """Each sample's lane graph from its vectors above min_score, in our BEV frame, clipped to rng; the
-    graphs built in `workers` processes."""
+    """Each sample's lane graph from its vectors above min_score, in our BEV frame, clipped to rng, with each
+    edge's score (build_graphs); the graphs built in `workers` processes."""
     kept = vectors.scores > min_score
     keep = np.flatnonzero(kept)
     sizes = np.diff(vectors.offsets)[keep]
@@ -263,25 +281,37 @@ def to_graphs(vectors: Vectors, frame_ids: list[str], fmt: str, dataset: str, rn
         xy, offsets, rng.x_min, rng.x_max, rng.y_min, rng.y_max
     )
     piece_sample = vectors.sample[keep][piece_vector]  # nondecreasing: vectors are in sample order
+    piece_score = vectors.scores[keep][piece_vector]  # a clipped piece keeps its vector's score
     bounds = np.searchsorted(piece_sample, np.arange(len(vectors.tokens) + 1))
     frames = [
         [points[piece_offsets[k] : piece_offsets[k + 1]] for k in range(bounds[i], bounds[i + 1])]
         for i in range(len(frame_ids))
     ]
+    scores = [piece_score[bounds[i] : bounds[i + 1]] for i in range(len(frame_ids))]
     if workers > 1 and len(frames) >= 64 * workers:  # Path2Graph is most of the conversion's time
         size = -(-len(frames) // (4 * workers))
         chunks = [frames[i : i + size] for i in range(0, len(frames), size)]
+        score_chunks = [scores[i : i + size] for i in range(0, len(scores), size)]
         with ProcessPoolExecutor(workers) as pool:
-            built = [g for part in pool.map(build_graphs, chunks, [fmt] * len(chunks)) for g in part]
+            parts = pool.map(build_graphs, chunks, [fmt] * len(chunks), score_chunks)
+            built = [g for part in parts for g in part]
     else:
-        built = build_graphs(frames, fmt)
-    return Converted(dict(zip(frame_ids, built)), len(keep), int(outside.sum()))
+        built = build_graphs(frames, fmt, scores)
+    return Converted(
+        {f: graph for f, (graph, _) in zip(frame_ids, built)}, len(keep), int(outside.sum()),
+        {f: edge_scores for f, (_, edge_scores) in zip(frame_ids, built)},
+    )  # fmt: skip
 
 
-def build_graphs(frames: list[list[np.ndarray]], fmt: str) -> list[LaneGraph]:
-    """Each frame's graph from its clipped vectors: Path2Graph for MapTRv2's paths, equal points merged
-    for CGNet's pieces."""
-    from benchmark.graphs.path2graph import path2graph  # loaded only where a MapTRv2 file is converted
+def build_graphs(frames: list[list[np.ndarray]], fmt: str,
+                 scores: list[np.ndarray]) -> list[tuple[LaneGraph, np.ndarray]]:  # fmt: skip
+    """Each frame's (graph, its edges' scores) from its clipped vectors and their scores: Path2Graph for
+    MapTRv2's paths, equal points merged for CGNet's pieces; an edge takes the highest score of the vectors
+    that produce it."""
+    from benchmark.graphs.path2graph import path2graph_scored  # loaded only where a MapTRv2 file is converted
 
-    build = path2graph if fmt == "maptrv2" else merge_equal_points
-    return [build(pieces) if pieces else LaneGraph.empty() for pieces in frames]
+    build = path2graph_scored if fmt == "maptrv2" else merge_equal_points_scored
+    return [
+        build(pieces, score) if pieces else (LaneGraph.empty(), np.zeros(0))
+        for pieces, score in zip(frames, scores)
+    ]

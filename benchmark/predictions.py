@@ -25,6 +25,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from benchmark import external
 from benchmark.graph_table import (
     TARGETS_KEY,
@@ -125,6 +127,8 @@ class Predictions:
     min_score: float | None
     modeling: str  # what the format predicts: graph, path or piece (external.MODELING)
     conversion: Conversion | None = None  # result files: to convert again at other kept scores
+    # result files: each graph edge's score, by frame id (external.Converted); None: graph tables, no score
+    edge_scores: dict[str, np.ndarray] | None = None
 
     def info(self) -> dict:
         """What the result says of the frames scored."""
@@ -234,6 +238,7 @@ def _result_file(request: Request, gt_path: Path, split: str | None, workers: in
         "vectors_kept": converted.kept,
         "points_clipped": converted.clipped,
         "conversion": conversion,
+        "edge_scores": converted.edge_scores,
     }
 
 

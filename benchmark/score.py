@@ -37,19 +37,21 @@ from pipeline.progress import track
 
 
 def _score_chunk(
-    chunk: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, metrics: tuple[str, ...]
-) -> tuple[Totals, VariantScores]:
+    chunk: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, metrics: tuple[str, ...],
+    scores: list[np.ndarray | None] | None = None,
+) -> tuple[Totals, VariantScores]:  # fmt: skip
     totals, others = Totals(params), VariantScores(metrics, params.bev_range)
-    for pred, gt in chunk:
-        score_frame(totals, others, pred, gt, metrics)
+    for (pred, gt), frame_scores in zip(chunk, scores or [None] * len(chunk)):
+        score_frame(totals, others, pred, gt, metrics, frame_scores)
     return totals, others
 
 
 def score_frame(totals: Totals, others: VariantScores, pred: LaneGraph, gt: LaneGraph,
-                metrics: tuple[str, ...]) -> None:  # fmt: skip
+                metrics: tuple[str, ...], scores: np.ndarray | None = None) -> None:  # fmt: skip
+    """One frame into the sums; `scores` (one per edge of `pred`, or None) go to the other metrics only."""
     if "lanegap" in metrics:
         totals.add_frame(pred, gt)
-    others.add_frame(pred, gt)
+    others.add_frame(pred, gt, scores)
 
 
 def score_pairs(
@@ -64,23 +66,29 @@ def score_pairs(
 
 def score_frames(
     pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1,
-    metrics: tuple[str, ...] = ("lanegap",),
+    metrics: tuple[str, ...] = ("lanegap",), pred_scores: list[np.ndarray | None] | None = None,
 ) -> tuple[dict, np.ndarray]:  # fmt: skip
     """(score_pairs' result without intervals, each pair's LaneGAP counts: (frames, FRAME_COLUMNS) in pair
     order). `metrics` (benchmark/metric/variants.py): LaneGAP's at the top level, each other one under its
-    name, all scored per frame in the same workers."""
+    name, all scored per frame in the same workers. `pred_scores`, parallel to `pairs`: each prediction's
+    edge scores (one per edge of its graph, or None: no score), OpenLane-V2's lane confidences."""
     workers = workers if workers > 0 else os.cpu_count() or 1
+    if pred_scores is not None and len(pred_scores) != len(pairs):
+        raise ValueError(f"pred_scores: one per pair ({len(pairs)}) is needed, not {len(pred_scores)}")
+    scores = list(pred_scores) if pred_scores is not None else [None] * len(pairs)
     totals, others = Totals(params), VariantScores(metrics, params.bev_range)
     with track("score frames", len(pairs)) as advance:
         if workers <= 1 or len(pairs) < 2 * workers:
-            for pred, gt in pairs:
-                score_frame(totals, others, pred, gt, metrics)
+            for (pred, gt), frame_scores in zip(pairs, scores):
+                score_frame(totals, others, pred, gt, metrics, frame_scores)
                 advance()
         else:
             size = max(1, min(64, len(pairs) // (4 * workers)))
             chunks = [pairs[i : i + size] for i in range(0, len(pairs), size)]
+            score_chunks = [scores[i : i + size] for i in range(0, len(scores), size)]
             with ProcessPoolExecutor(workers) as pool:
-                parts = pool.map(_score_chunk, chunks, [params] * len(chunks), [metrics] * len(chunks))
+                parts = pool.map(_score_chunk, chunks, [params] * len(chunks), [metrics] * len(chunks),
+                                 score_chunks)  # fmt: skip
                 for chunk, (part, records) in zip(chunks, parts):
                     totals.add(part)  # exact sums: the chunking does not change a digit
                     others.add(records)  # in chunk order, so in pair order
@@ -171,7 +179,9 @@ def score(
     gt = graphs_from_table(read_graph_table(gt_path), Path(gt_path))
     pred = predictions.read(request, Path(gt_path), gt, split, workers)
     pairs = [(pred.graphs[f], gt[f]) for f in pred.frame_ids]
-    result, frame_counts = score_frames(pairs, metric_params, workers, metrics)
+    # each prediction's edge scores (a result file's vectors' scores; None: a graph table, no score)
+    pred_scores = None if pred.edge_scores is None else [pred.edge_scores[f] for f in pred.frame_ids]
+    result, frame_counts = score_frames(pairs, metric_params, workers, metrics, pred_scores)
     if "lanegap" in metrics:
         add_intervals(result, frame_counts, bootstrap)
     result.setdefault("frames", len(pairs))

@@ -12,6 +12,8 @@
    different connected pieces after step 2: paths that already share a vertex meet where they truly
    meet, and merging their nearby vertices would only blur a fork or a merge.
 4. Self-loops and repeated edges are dropped.
+5. With one score per path (`path2graph_scored`), each edge takes the highest score among the paths
+   whose chain parts map onto it; `path2graph` is the same graph without the scores.
 Coordinates stay float64. docs/METRICS.md explains the round trip of the ground truth (1.000).
 """
 
@@ -120,13 +122,28 @@ def _vertices(points, vertex, n, cluster):
 
 def path2graph(paths: Sequence[np.ndarray], step: float = 0.15, merge_radius: float = 0.15) -> LaneGraph:
     """The lane graph of a set of paths, each an (n, 2) array of points in driving order."""
+    return path2graph_scored(paths, None, step, merge_radius)[0]
+
+
+def path2graph_scored(
+    paths: Sequence[np.ndarray], scores=None, step: float = 0.15, merge_radius: float = 0.15
+) -> tuple[LaneGraph, np.ndarray]:
+    """(path2graph's graph, each of its edges' score): the highest score among the paths whose chain parts
+    map onto that edge (`scores`: one per path; None: every score 0.0)."""
     sizes = np.array([len(p) for p in paths], np.int64)
     if sizes.sum() == 0:
-        return LaneGraph.empty()
+        return LaneGraph.empty(), np.zeros(0)
+    path_score = np.zeros(len(paths)) if scores is None else np.asarray(scores, np.float64)
+    if path_score.shape != (len(paths),):
+        raise ValueError(f"scores: one per path ({len(paths)}) is needed, not shape {path_score.shape}")
     xy = np.concatenate([np.asarray(p, np.float64).reshape(-1, 2) for p in paths]) + 0.0  # no -0.0
     path_of = np.repeat(np.arange(len(paths)), sizes)
     segment = np.flatnonzero(path_of[:-1] == path_of[1:])  # segment i: point i -> point i + 1
     points, chain_src, chain_dst, _ = split_into_parts(xy, segment, segment + 1, step, EPS)
+    # each segment's parts are consecutive, and only its last one ends at an input point (< len(xy))
+    last = chain_dst < len(xy)
+    part_segment = np.cumsum(last) - last
+    part_score = path_score[path_of[segment[part_segment]]]
     vertex, n = identical_points(points)
     # each step-2 vertex's direction: that of the chain part leaving it, else of the one entering it
     step_xy = points[chain_dst] - points[chain_src]
@@ -139,5 +156,9 @@ def path2graph(paths: Sequence[np.ndarray], step: float = 0.15, merge_radius: fl
     out, mean = _vertices(points, vertex, n, cluster)
     src, dst = out[vertex[chain_src]], out[vertex[chain_dst]]
     n_out = len(mean)
-    key = np.unique((src * n_out + dst)[src != dst])
-    return LaneGraph(mean[:, 0], mean[:, 1], (key // n_out).astype(np.int32), (key % n_out).astype(np.int32))
+    loop = src == dst
+    key, edge_of = np.unique((src * n_out + dst)[~loop], return_inverse=True)
+    edge_score = np.full(len(key), -np.inf)
+    np.maximum.at(edge_score, edge_of.ravel(), part_score[~loop])
+    graph = LaneGraph(mean[:, 0], mean[:, 1], (key // n_out).astype(np.int32), (key % n_out).astype(np.int32))
+    return graph, edge_score

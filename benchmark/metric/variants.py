@@ -18,15 +18,16 @@ def parse_metrics(text: str, option: str = "--metric") -> tuple[str, ...]:
 
 
 # Each variant's module is imported where it is first used: a score under one metric loads no other.
-def variant_frame(name: str, pred: LaneGraph, gt: LaneGraph, bev_range: str) -> dict:
-    """What one frame contributes to the variant `name` (picklable: computed in the scoring workers)."""
+def variant_frame(name: str, pred: LaneGraph, gt: LaneGraph, bev_range: str, scores=None) -> dict:
+    """What one frame contributes to the variant `name` (picklable: computed in the scoring workers).
+    `scores`: one per edge of `pred`, its lanes' confidences for OpenLane-V2 (None: 1.0); CGNet's has none."""
     if name == "cgnet":
         from benchmark.metric.cgnet import CGNetParams, cgnet_frame
 
         return cgnet_frame(pred, gt, CGNetParams())
     from benchmark.metric.openlanev2 import OpenLaneV2Params, openlanev2_frame
 
-    return openlanev2_frame(pred, gt, OpenLaneV2Params(bev_range=bev_range))
+    return openlanev2_frame(pred, gt, OpenLaneV2Params(bev_range=bev_range), pred_scores=scores)
 
 
 def variant_result(name: str, frames: list[dict]) -> dict:
@@ -49,9 +50,10 @@ class VariantScores:
         self.bev_range = bev_range
         self.records: dict[str, list[dict]] = {name: [] for name in self.names}
 
-    def add_frame(self, pred: LaneGraph, gt: LaneGraph) -> None:
+    def add_frame(self, pred: LaneGraph, gt: LaneGraph, scores=None) -> None:
+        """One frame; `scores`: one per edge of `pred`, or None (variant_frame)."""
         for name in self.names:
-            self.records[name].append(variant_frame(name, pred, gt, self.bev_range))
+            self.records[name].append(variant_frame(name, pred, gt, self.bev_range, scores))
 
     def add(self, other: VariantScores) -> None:
         """Another chunk's records, after this one's."""

@@ -21,6 +21,7 @@ from pipeline.errors import DataError
 from pipeline.executor import import_ray, run_local, run_ray
 from pipeline.geometry import matrix_quaternion
 from pipeline.lane_graph import LaneMap
+from pipeline.progress import tracked
 from pipeline.records import Frame, Log, LogIndex
 from pipeline.splits.geographic import draw_dataset_splits
 from pipeline.splits.leakage import read_and_measure
@@ -156,6 +157,11 @@ def index_job(job: Job) -> LogIndex:
     from pipeline.adapters import nuscenes
 
     return nuscenes.index_log(job.ref)
+
+
+def index_jobs(jobs: list[Job]) -> dict[str, LogIndex]:
+    """Every log's LogIndex, with a bar: a whole dataset's poses before any frame is prepared."""
+    return {job.name: index_job(job) for job in tracked(jobs, "index logs", len(jobs))}
 
 
 def frame_row(frame: Frame, targets: FrameTargets) -> dict:
@@ -403,7 +409,7 @@ def only_split(job: Job, split: str) -> Job | None:
 def plan_files(found: list[Job], split_files: dict[str, Path], frame_stride: int) -> Plan:
     """The split files' splits, of whole logs or of frames; logs and frames in no file are left out."""
     lines = read_split_files(split_files)
-    indexes = {job.name: index_job(job) for job in found} if needs_index(lines) else {}
+    indexes = index_jobs(found) if needs_index(lines) else {}
     files = plan_from_files(lines, [job.name for job in found], indexes)
     jobs, frames_unnamed = [], 0
     for job in found:
@@ -426,7 +432,7 @@ def plan_files(found: list[Job], split_files: dict[str, Path], frame_stride: int
 
 def plan_geographic(found: list[Job], splits: SplitOptions, frame_stride: int) -> Plan:
     """The geographic scheme over every log's frames (pipeline/splits/geographic.py)."""
-    indexes = {job.name: index_job(job) for job in found}
+    indexes = index_jobs(found)
     original = {job.name: job.split for job in found}
     try:
         frame_splits, geo = geographic_plan(

@@ -139,7 +139,7 @@ class PreparedDataset(torch.utils.data.Dataset):
         crop = data.crop
         model_range = (tuple(config.encoder.x_range), tuple(config.encoder.y_range))
         if crop is not None and crop != model_range:
-            # targets outside the model's grid would be silently wrong (unit coordinates beyond [0, 1])
+            # targets outside the model's grid would be wrong without a word (unit coordinates beyond [0, 1])
             raise ValueError(
                 f"{manifest_path}: the dataset is cropped to x {crop[0]}, y {crop[1]} m but the model's BEV "
                 f"grid covers x {model_range[0]}, y {model_range[1]} m; train on it (cli train takes the "

@@ -7,7 +7,7 @@ it to the ground truth's frames:
   split or splits of the predicted frames, from a prepared dataset's `frames` table; every frame of a
   graph-table file). One with no prediction row counts as an empty prediction (`frames_missing`); a
   predicted frame that is not in the ground truth (a typo or another dataset), or not in `split`, is
-  refused, never silently dropped. Stale data is refused: predictions written by `cli eval` record the
+  refused, never dropped unsaid. Stale data is refused: predictions written by `cli eval` record the
   target parameters of the dataset their model was trained on, and a prepared ground truth made with
   other ones is an error naming the parameter.
 - "maptrv2" / "cgnet": another codebase's JSON (benchmark/external.py), converted to graphs at the kept

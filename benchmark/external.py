@@ -31,7 +31,7 @@ import numpy as np
 from benchmark.metric.densify import identical_points
 from pipeline import io
 from pipeline.geometry import Range, clip_polylines
-from pipeline.lane_graph import LaneGraph
+from pipeline.lane_graph import LaneGraph, graph_of_edges
 
 FORMATS = ("graph", "maptrv2", "cgnet")
 CLASSES = {  # each codebase's map classes (MapTRv2's `_w_centerline` configs; CGNet's config)
@@ -246,12 +246,7 @@ def merge_equal_points_scored(pieces: list[np.ndarray], scores=None) -> tuple[La
     inner = ~is_last[:-1]
     src, dst = vertex[:-1][inner], vertex[1:][inner]
     edge_score = np.repeat(piece_score, sizes)[:-1][inner]
-    real = src != dst
-    key, edge_of = np.unique((src * n + dst)[real], return_inverse=True)
-    best = np.full(len(key), -np.inf)
-    np.maximum.at(best, edge_of.ravel(), edge_score[real])
-    graph = LaneGraph(xy[first, 0], xy[first, 1], (key // n).astype(np.int32), (key % n).astype(np.int32))
-    return graph, best
+    return graph_of_edges(xy[first, 0], xy[first, 1], src, dst, edge_score)
 
 
 @dataclass

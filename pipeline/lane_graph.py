@@ -31,6 +31,22 @@ class LaneGraph:
         )
 
 
+def graph_of_edges(
+    x: np.ndarray, y: np.ndarray, src: np.ndarray, dst: np.ndarray, score: np.ndarray | None = None
+) -> tuple[LaneGraph, np.ndarray | None]:
+    """The LaneGraph of vertices (x, y) and edges src -> dst, self-loops and repeated edges dropped, the
+    edges in (src, dst) order; with `score` (one per given edge), each kept edge's highest (else None)."""
+    n, real = len(x), src != dst
+    keys = (src.astype(np.int64) * n + dst)[real]
+    if score is None:
+        key, best = np.unique(keys), None
+    else:
+        key, edge_of = np.unique(keys, return_inverse=True)
+        best = np.full(len(key), -np.inf)
+        np.maximum.at(best, edge_of.ravel(), np.asarray(score, np.float64)[real])
+    return LaneGraph(x, y, (key // n).astype(np.int32), (key % n).astype(np.int32)), best
+
+
 @dataclass
 class LaneMap:
     """The lanes of one map stacked into arrays, so that each frame crops them in a few vector ops."""

@@ -27,7 +27,7 @@ import numpy as np
 from benchmark.metric.candidates import near_pairs, ties_by_key
 from benchmark.metric.densify import identical_points, split_into_parts
 from benchmark.metric.params import EPS
-from pipeline.lane_graph import LaneGraph
+from pipeline.lane_graph import LaneGraph, graph_of_edges
 
 MERGE_MAX_ANGLE = 45.0  # degrees between two vertices' directions for step 3 to merge them
 
@@ -140,10 +140,6 @@ def path2graph_scored(
     path_of = np.repeat(np.arange(len(paths)), sizes)
     segment = np.flatnonzero(path_of[:-1] == path_of[1:])  # segment i: point i -> point i + 1
     points, chain_src, chain_dst, _ = split_into_parts(xy, segment, segment + 1, step, EPS)
-    # each segment's parts are consecutive, and only its last one ends at an input point (< len(xy))
-    last = chain_dst < len(xy)
-    part_segment = np.cumsum(last) - last
-    part_score = path_score[path_of[segment[part_segment]]]
     vertex, n = identical_points(points)
     # each step-2 vertex's direction: that of the chain part leaving it, else of the one entering it
     step_xy = points[chain_dst] - points[chain_src]
@@ -155,10 +151,10 @@ def path2graph_scored(
     cluster = _cluster(points, vertex, n, chain_src, chain_dst, merge_radius, EPS, direction, min_cos)
     out, mean = _vertices(points, vertex, n, cluster)
     src, dst = out[vertex[chain_src]], out[vertex[chain_dst]]
-    n_out = len(mean)
-    loop = src == dst
-    key, edge_of = np.unique((src * n_out + dst)[~loop], return_inverse=True)
-    edge_score = np.full(len(key), -np.inf)
-    np.maximum.at(edge_score, edge_of.ravel(), part_score[~loop])
-    graph = LaneGraph(mean[:, 0], mean[:, 1], (key // n_out).astype(np.int32), (key % n_out).astype(np.int32))
-    return graph, edge_score
+    if scores is None:  # LaneGAP's post-processing, a hot path: no score to keep
+        graph, _ = graph_of_edges(mean[:, 0], mean[:, 1], src, dst)
+        return graph, np.zeros(len(graph.src))
+    # each segment's parts are consecutive, and only its last one ends at an input point (< len(xy))
+    last = chain_dst < len(xy)
+    part_score = path_score[path_of[segment[np.cumsum(last) - last]]]
+    return graph_of_edges(mean[:, 0], mean[:, 1], src, dst, part_score)

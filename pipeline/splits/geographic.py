@@ -11,9 +11,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline import io
 from pipeline.io import write_atomic
-from pipeline.splits.leakage import is_training
+from pipeline.splits.leakage import frame_places, is_training
 
 GROUPS_PER_SMALLEST_SPLIT = 4  # a city is cut into about this many groups per share of its smallest split
 ORDERS = 16  # seeded orders of a city's groups tried; the one whose kept shares come nearest the targets wins
@@ -305,7 +304,5 @@ def draw_dataset_splits(
     data: Path, path: Path, cells: dict | None = None, cell_m: float | None = None
 ) -> None:
     """draw_split_map of every frame of a prepared dataset (its `frames` table), e.g. DATA/splits.png."""
-    frames = io.read_table(data, "frames", columns=["city", "split", "pose_translation"])
-    xy = np.array(frames.column("pose_translation").to_pylist(), np.float64).reshape(-1, 3)[:, :2]
-    split = frames.column("split").to_pylist()
-    draw_split_map(frames.column("city").to_pylist(), xy, split, path, cells=cells, cell_m=cell_m)
+    split, cities, xy = frame_places(data)
+    draw_split_map(cities, xy, split, path, cells=cells, cell_m=cell_m)

@@ -82,18 +82,21 @@ def measure(splits: Sequence[str], cities: Sequence[str], xy: np.ndarray, range_
     return result
 
 
-def read_and_measure(data: Path, range_m: float) -> dict:
-    """`measure` of a prepared dataset's frames table (split, city and pose_translation's x, y)."""
+def frame_places(data: Path) -> tuple[list[str], list[str], np.ndarray]:
+    """(split, city, world x y) of every frame of a prepared dataset (its `frames` table)."""
     table = io.read_table(Path(data), "frames", columns=["split", "city", "pose_translation"])
     poses = table.column("pose_translation").combine_chunks()
-    offsets = poses.offsets.to_numpy()
-    values = poses.values.to_numpy(zero_copy_only=False)
+    offsets, values = io.numbers(poses.offsets), io.numbers(poses.values)
     short = np.flatnonzero(np.diff(offsets) < 2)
     if len(short):
         raise ValueError(f"{data}/frames: {len(short)} frames have no x, y in pose_translation")
     xy = np.stack([values[offsets[:-1]], values[offsets[:-1] + 1]], axis=1)
-    splits = table.column("split").to_pylist()
-    cities = table.column("city").to_pylist()
+    return table.column("split").to_pylist(), table.column("city").to_pylist(), xy
+
+
+def read_and_measure(data: Path, range_m: float) -> dict:
+    """`measure` of a prepared dataset's frames (frame_places)."""
+    splits, cities, xy = frame_places(data)
     return measure(splits, cities, xy, range_m)
 
 

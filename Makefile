@@ -6,6 +6,7 @@ DEMO_ALL := demo_all
 DEMO_SYNTH :=
 DEMO_TRAIN :=
 CLI := .venv/bin/cli
+KERNELS := pipeline/_aot_kernels.json
 
 .PHONY: demo demo-all test test-learning wheel-smoke gpu-check gpu-smoke gpu-dryrun wheelhouse bench \
 	bench-train bench-step lint clean
@@ -43,18 +44,23 @@ define demo_pipeline
 	$(CLI) report --runs $(1)/runs --roundtrip $(1)/roundtrip_path.json --roundtrip $(1)/roundtrip_piece.json --roundtrip $(1)/roundtrip_pixel.json --out $(1)/report $(3)
 endef
 
+# The kernels that `cli score` calls, compiled ahead of time (pipeline/kernels.py; ~1 minute): again whenever
+# a module of pipeline/ or benchmark/ changed, since a build of other sources is not used.
+$(KERNELS): $(STAMP) $(shell find pipeline benchmark -name '*.py')
+	$(PY) -m tools.build_kernels
+
 # Two models, under 15 minutes on 2 cores from a fresh clone: 7 epochs (560 steps) where the tiny preset,
 # demo-all and the learning checks train 11 (880 steps); docs/BENCHMARKS.md has its time and breakdown.
-demo: $(STAMP)
+demo: $(STAMP) $(KERNELS)
 	$(call demo_pipeline,$(DEMO),hdmapnet lanegap,,--epochs 7)
 
 # All four models under the same recipe, then the report with the paper's tables beside it.
-demo-all: $(STAMP)
+demo-all: $(STAMP) $(KERNELS)
 	$(call demo_pipeline,$(DEMO_ALL),hdmapnet lanegap maptr stsu,--reference paper)
 
 # The learning contract (tests/test_baselines_learning.py) runs alone, not in `make test`: five trainings
 # of the tiny preset's 880 steps take 20-30 minutes on 2 cores. LANEGRAPH_LEARNING_SEED=2 for another seed.
-test: $(STAMP)
+test: $(STAMP) $(KERNELS)
 	$(PY) -m pytest -n 2 tests
 
 test-learning: $(STAMP)
@@ -127,7 +133,7 @@ wheelhouse: $(STAMP)
 	echo $(WHEEL_PYTHON) >$(WHEELHOUSE)/python-version
 	du -sh $(WHEELHOUSE)
 
-bench: $(STAMP)
+bench: $(STAMP) $(KERNELS)
 	$(PY) -m tools.bench_prepare
 	$(PY) -m tools.bench_metrics
 	$(PY) -m tools.bench_external

@@ -38,8 +38,11 @@ def read_graph_table(path: Path) -> pa.Table:
     try:
         files = io.shard_files(path) if path.is_dir() else [path]
         tables = [pq.ParquetFile(file).read() for file in files]
-        # as a dataset scan reads them: every shard in the first one's schema
-        table = pa.concat_tables([t.cast(tables[0].schema) for t in tables]) if tables else pa.table({})
+        # as a dataset scan reads them: every shard in the first one's schema (a cast only where it differs:
+        # it imports pyarrow.compute, 0.07 s of a one-frame `cli score`)
+        schema = tables[0].schema if tables else None
+        same = [t if t.schema.equals(schema) else t.cast(schema) for t in tables]
+        table = pa.concat_tables(same) if tables else pa.table({})
     except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, ValueError) as error:
         raise GraphTableError(f"{path}: not a readable Parquet graph table ({error})") from error
     missing = [c for c in COLUMNS if c not in table.column_names]

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
+
+from pipeline.kernels import kernel
 
 
 @dataclass(frozen=True)
@@ -76,7 +77,7 @@ def matrix_quaternion(T: np.ndarray) -> np.ndarray:
 AV2_EGO_FROM_BEV = np.array([[0.0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
 
 
-@numba.njit(cache=True)
+@kernel
 def _clip_segment(ax, ay, bx, by, x_min, x_max, y_min, y_max):
     """Liang-Barsky: parameters (t0, t1) of the part of segment a->b inside the box, or (1, 0)."""
     t0, t1 = 0.0, 1.0
@@ -100,7 +101,7 @@ def _clip_segment(ax, ay, bx, by, x_min, x_max, y_min, y_max):
     return t0, t1
 
 
-@numba.njit(cache=True)
+@kernel
 def clip_polylines(xy, offsets, x_min, x_max, y_min, y_max):
     """Clip polylines (points xy[offsets[i]:offsets[i+1]]) to a box, keeping their direction.
 
@@ -182,7 +183,7 @@ def clip_polylines(xy, offsets, x_min, x_max, y_min, y_max):
     )
 
 
-@numba.njit(cache=True)
+@kernel
 def resample_polylines(xy, offsets, n_points):
     """Resample every polyline xy[offsets[i]:offsets[i+1]] to n_points evenly spaced by arc length.
 

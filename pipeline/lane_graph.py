@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from pipeline.geometry import Range, clip_polylines
+from pipeline.kernels import kernel
 from pipeline.records import Lane
 
 
@@ -82,7 +82,7 @@ class LaneMap:
         )
 
 
-@numba.njit(cache=True)
+@kernel
 def merge_labels(n, a, b):
     """Union-find over n points joined in pairs (a[k], b[k]): a label per point, numbered in order of
     first appearance. A numba kernel: scipy's connected_components costs more in set-up than the

@@ -21,18 +21,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numba
 import numpy as np
 
 from benchmark.metric.candidates import near_pairs, ties_by_key
 from benchmark.metric.densify import identical_points, split_into_parts
 from benchmark.metric.params import EPS
+from pipeline.kernels import kernel
 from pipeline.lane_graph import LaneGraph, graph_of_edges
 
 MERGE_MAX_ANGLE = 45.0  # degrees between two vertices' directions for step 3 to merge them
 
 
-@numba.njit(cache=True)
+@kernel
 def _find(parent, i):
     while parent[i] != i:
         parent[i] = parent[parent[i]]
@@ -40,7 +40,7 @@ def _find(parent, i):
     return i
 
 
-@numba.njit(cache=True)
+@kernel
 def _cluster(points, vertex, n, chain_src, chain_dst, radius, eps, direction, min_cos):
     """Step 3: the cluster (a step-2 vertex) of each step-2 vertex."""
     # the connected pieces that the chains form over the step-2 vertices
@@ -89,7 +89,7 @@ def _cluster(points, vertex, n, chain_src, chain_dst, radius, eps, direction, mi
     return cluster
 
 
-@numba.njit(cache=True)
+@kernel
 def _vertices(points, vertex, n, cluster):
     """Output vertex of each step-2 vertex (clusters numbered by first appearance) and the
     coordinates of each: the mean of its step-2 vertices, as first + mean offset, so that a vertex

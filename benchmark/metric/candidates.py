@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from benchmark.metric.params import EPS
+from pipeline.kernels import kernel
 
 
 @dataclass
@@ -25,7 +25,7 @@ class Candidates:
     b_rank: np.ndarray  # (C,)
 
 
-@numba.njit(cache=True)
+@kernel
 def _rows(keys, n):
     """CSR of the ranks 0..len(keys)-1 grouped by key, ascending within each row."""
     ptr = np.zeros(n + 1, np.int64)
@@ -40,7 +40,7 @@ def _rows(keys, n):
     return ptr, ranks
 
 
-@numba.njit(cache=True)
+@kernel
 def _cell_search(
     a_xy, b_xy, limit, group_a, group_b, a_cell, a_order, b_cell, b_order, column, pair_a, pair_b, pair_d
 ):
@@ -72,7 +72,7 @@ def _cell_search(
     return at
 
 
-@numba.njit(cache=True)
+@kernel
 def near_pairs(a_xy, b_xy, radius, eps, group_a, group_b):
     """(count per a, b, distance) of the pairs closer than radius - eps, grouped by a (b in no
     particular order), leaving out pairs in the same group (group_a[i] == group_b[j]).
@@ -129,7 +129,7 @@ def near_pairs(a_xy, b_xy, radius, eps, group_a, group_b):
     return count, pair_b[rows], pair_d[rows]
 
 
-@numba.njit(cache=True)
+@kernel
 def ties_by_key(order, dist, key):
     """Sort each run of equal distances of an (unstable) argsort by key, i.e. by (a, b)."""
     s = 0
@@ -144,7 +144,7 @@ def ties_by_key(order, dist, key):
     return order
 
 
-@numba.njit(cache=True)
+@kernel
 def _ranked(count, pair_b, dist, order, n_a, n_b):
     """The pairs in matching order (order: an unstable argsort of dist), and their rows by a and b."""
     pair_a = np.repeat(np.arange(n_a), count)

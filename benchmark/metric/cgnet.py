@@ -34,10 +34,10 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-import numba
 import numpy as np
 
 from benchmark.metric.cgnet_order import rtree_rank, set_order, tuple_hash
+from pipeline.kernels import kernel
 from pipeline.lane_graph import LaneGraph
 
 # The version of this metric, recorded in its result JSON: bump it whenever a change can move any digit.
@@ -113,7 +113,7 @@ def key_edges(graph: LaneGraph, scale: float) -> tuple[np.ndarray, np.ndarray]:
 # 2. Interpolation
 
 
-@numba.njit(cache=True)
+@kernel
 def _point_ids(px, py):
     """Ids of the points by exact value (-0.0 is 0.0), numbered by first appearance, and their count."""
     n = len(px)
@@ -140,7 +140,7 @@ def _point_ids(px, py):
     return ids, first[:count]
 
 
-@numba.njit(cache=True)
+@kernel
 def _interpolate(ax, ay, bx, by, step, half_width, half_length):
     """The interpolated graph: node positions (x, y) and successor lists (ptr, succ) in CSR form."""
     total = 0
@@ -189,7 +189,7 @@ def _interpolate(ax, ay, bx, by, step, half_width, half_length):
 # 3. Candidate pairs and the frame's matching
 
 
-@numba.njit(cache=True)
+@kernel
 def _candidates(px, py, gx, gy, radius, two):
     """Pairs (predicted a, true b, r) with r = (gx - px) ** two + (gy - py) ** two < radius ** 2, sorted by
     (r, a, b). `two` is 2.0 passed at run time, so that the square is libm's pow as in Python."""
@@ -230,14 +230,14 @@ def _candidates(px, py, gx, gy, radius, two):
     return ca[by_r], cb[by_r], cr[by_r]
 
 
-@numba.njit(cache=True)
+@kernel
 def _grow(values, size):
     out = np.empty(size, values.dtype)
     out[: len(values)] = values
     return out
 
 
-@numba.njit(cache=True)
+@kernel
 def _greedy(first, second, r, free_first, free_second, rank, ranked):
     """Greedy one-to-one matching of pairs sorted by (r, first): a pair is kept when both ends are free;
     pairs of equal (r, first) go in the order of rank[second], which is read only when two of them are
@@ -274,7 +274,7 @@ def _greedy(first, second, r, free_first, free_second, rank, ranked):
 # 4. The walk and the matching of two walks
 
 
-@numba.njit(cache=True)
+@kernel
 def _walk(ptr, succ, length, start, limit, mark, sid, stack_node, stack_depth, added):
     """propagateByDistance from start: the nodes it marks, in the order first marked, into added."""
     stack_node[0], stack_depth[0] = start, 0.0
@@ -295,7 +295,7 @@ def _walk(ptr, succ, length, start, limit, mark, sid, stack_node, stack_depth, a
     return count
 
 
-@numba.njit(cache=True)
+@kernel
 def _lengths(x, y, ptr, succ, two):
     """Each successor entry's edge length, sqrt((x_v - x_u) ** 2 + (y_v - y_u) ** 2) with libm's pow."""
     out = np.empty(len(succ))
@@ -305,7 +305,7 @@ def _lengths(x, y, ptr, succ, two):
     return out
 
 
-@numba.njit(cache=True)
+@kernel
 def _frame(px, py, pptr, psucc, gx, gy, gptr, gsucc, cand_a, cand_b, cand_r, params, two):
     """Step 3-5 of one frame: (matched, TOPO p, r per scored pair, JTOPO p, r per scored pair)."""
     limit, box, every = params[0], params[1], int(params[2])
@@ -362,7 +362,7 @@ def _frame(px, py, pptr, psucc, gx, gy, gptr, gsucc, cand_a, cand_b, cand_r, par
     return matched, topo_p[:n_topo], topo_r[:n_topo], junc_p[:n_junc], junc_r[:n_junc]
 
 
-@numba.njit(cache=True)
+@kernel
 def _window(p_list, count_p, p_mark, p_place, g_list, count_g, cand_a, cand_r, by_g, g_ptr, px, py, sid, box):
     """The evaluator's `match` of two walks: pairs (true place i, predicted place n, r) with r < radius ** 2,
     the true list outside, each one's predicted candidates in the R-tree's order of the predicted list,

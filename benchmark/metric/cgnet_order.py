@@ -22,8 +22,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from pipeline.kernels import kernel
 
 CAPACITY = 100  # entries of a leaf or an index node
 NEAR_OVERLAP = 32  # least-overlap choice: only among the 32 least-enlarging children
@@ -39,17 +40,17 @@ MAX_LEVELS = 64
 # Regions: lo, hi are (2,) arrays
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _area(lo0, lo1, hi0, hi1):
     return (hi0 - lo0) * (hi1 - lo1)
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _margin(lo0, lo1, hi0, hi1):
     return (0.0 + (hi0 - lo0) * 2.0) + (hi1 - lo1) * 2.0
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _overlap(alo0, alo1, ahi0, ahi1, blo0, blo1, bhi0, bhi1):
     """The area two regions share (0 when apart; touching regions share 0 too)."""
     if alo0 > bhi0 or ahi0 < blo0 or alo1 > bhi1 or ahi1 < blo1:
@@ -57,12 +58,12 @@ def _overlap(alo0, alo1, ahi0, ahi1, blo0, blo1, bhi0, bhi1):
     return (min(ahi0, bhi0) - max(alo0, blo0)) * (min(ahi1, bhi1) - max(alo1, blo1))
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _contains(alo, ahi, blo, bhi):
     return not (alo[0] > blo[0] or ahi[0] < bhi[0] or alo[1] > blo[1] or ahi[1] < bhi[1])
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _touches(alo, ahi, blo, bhi):
     for d in range(2):
         if (blo[d] - TINY <= alo[d] <= blo[d] + TINY) or (bhi[d] - TINY <= ahi[d] <= bhi[d] + TINY):
@@ -75,7 +76,7 @@ def _touches(alo, ahi, blo, bhi):
 # and ids ref[k, e] (a child node, or an inserted entry in a leaf). Slot CAPACITY holds an overflowing entry.
 
 
-@numba.njit(cache=True)
+@kernel
 def _refit(nlo, nhi, lo, hi, cnt, k):
     nlo[k, 0], nlo[k, 1], nhi[k, 0], nhi[k, 1] = BIG, BIG, -BIG, -BIG
     for e in range(cnt[k]):
@@ -84,7 +85,7 @@ def _refit(nlo, nhi, lo, hi, cnt, k):
             nhi[k, d] = max(nhi[k, d], hi[k, e, d])
 
 
-@numba.njit(cache=True)
+@kernel
 def _append(nlo, nhi, lo, hi, ref, cnt, k, elo, ehi, eref):
     e = cnt[k]
     lo[k, e, 0], lo[k, e, 1], hi[k, e, 0], hi[k, e, 1], ref[k, e] = elo[0], elo[1], ehi[0], ehi[1], eref
@@ -94,12 +95,12 @@ def _append(nlo, nhi, lo, hi, ref, cnt, k, elo, ehi, eref):
         nhi[k, d] = max(nhi[k, d], ehi[d])
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _put(lo, hi, e, elo, ehi):
     lo[e, 0], lo[e, 1], hi[e, 0], hi[e, 1] = elo[0], elo[1], ehi[0], ehi[1]
 
 
-@numba.njit(cache=True)
+@kernel
 def _fill(tree, k, group, old_lo, old_hi, old_ref):
     """Node k emptied, then the entries `group` of old_* appended in order."""
     nlo, nhi, lo, hi, ref, cnt, lev = tree
@@ -109,7 +110,7 @@ def _fill(tree, k, group, old_lo, old_hi, old_ref):
         _append(nlo, nhi, lo, hi, ref, cnt, k, old_lo[e], old_hi[e], old_ref[e])
 
 
-@numba.njit(cache=True)
+@kernel
 def _least_enlargement(lo, hi, cnt, k, elo, ehi):
     best, least = -1, np.inf
     for c in range(cnt[k]):
@@ -125,7 +126,7 @@ def _least_enlargement(lo, hi, cnt, k, elo, ehi):
     return best
 
 
-@numba.njit(cache=True)
+@kernel
 def _least_overlap(lo, hi, cnt, k, elo, ehi):
     n = cnt[k]
     clo, chi = np.empty((n, 2)), np.empty((n, 2))
@@ -168,7 +169,7 @@ def _least_overlap(lo, hi, cnt, k, elo, ehi):
     return best
 
 
-@numba.njit(cache=True)
+@kernel
 def _spans(lo, hi, order):
     """Prefix and suffix bounding boxes of the entries in `order`: (lo0, lo1, hi0, hi1) each."""
     n = len(order)
@@ -188,7 +189,7 @@ def _spans(lo, hi, order):
     return pre, suf
 
 
-@numba.njit(cache=True)
+@kernel
 def _split(lo, hi):
     """R* split of CAPACITY + 1 entries: (first group, second group), each in its sorted order."""
     by_low, by_high = np.arange(CAPACITY + 1), np.arange(CAPACITY + 1)
@@ -228,7 +229,7 @@ def _split(lo, hi):
     return order[:cut], order[cut:]
 
 
-@numba.njit(cache=True)
+@kernel
 def _adjust(tree, k, parent, path, depth, force):
     """Index::adjustTree(node): the parent's entry for k takes k's region, and refits go up while needed."""
     nlo, nhi, lo, hi, ref, cnt, lev = tree
@@ -247,7 +248,7 @@ def _adjust(tree, k, parent, path, depth, force):
         k, parent, depth = parent, path[depth - 1], depth - 1
 
 
-@numba.njit(cache=True)
+@kernel
 def _insert(
     tree, n_nodes, elo, ehi, eref, level, overflow, tasks_lo, tasks_hi, tasks_ref, tasks_lev, n_tasks
 ):
@@ -337,7 +338,7 @@ def _insert(
         k = parent
 
 
-@numba.njit(cache=True)
+@kernel
 def rtree_rank(x: np.ndarray, y: np.ndarray, half: float) -> np.ndarray:
     """Entry i is the box (x[i] - half, y[i] - half, x[i] + half, y[i] + half), inserted in order i = 0..n-1
     into an empty R*-tree: each entry's place in the order a range query lists it."""
@@ -393,7 +394,7 @@ LINEAR_PROBES = 9
 PERTURB_SHIFT = 5
 
 
-@numba.njit(cache=True)
+@kernel
 def _float_hash(v: float) -> np.uint64:
     """hash(v) of a finite float (equal to hash(int(v)) when v is whole), as an unsigned 64-bit word."""
     m, e = math.frexp(v)
@@ -420,7 +421,7 @@ def _float_hash(v: float) -> np.uint64:
     return x
 
 
-@numba.njit(cache=True)
+@kernel
 def tuple_hash(x: float, y: float) -> np.uint64:
     """hash((x, y)) of two finite floats (or whole numbers), as an unsigned 64-bit word."""
     acc = XXPRIME_5
@@ -434,7 +435,7 @@ def tuple_hash(x: float, y: float) -> np.uint64:
     return acc
 
 
-@numba.njit(cache=True)
+@kernel
 def _slot(table, size_mask, h):
     """set_insert_clean: the first empty slot on h's probe sequence."""
     mask = np.uint64(size_mask)
@@ -451,7 +452,7 @@ def _slot(table, size_mask, h):
         i = (i * np.uint64(5) + np.uint64(1) + perturb) & mask
 
 
-@numba.njit(cache=True)
+@kernel
 def set_order(items, count, hashes, table, spare, out):
     """`list(s)` after s.add(item) for the first `count` items (distinct; hashes[item] their hashes): the
     items in table order, written to out. table and spare are work buffers of at least 8 * count + 8 slots.

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from benchmark.metric.candidates import _rows
 from benchmark.metric.params import EPS
+from pipeline.kernels import kernel
 from pipeline.lane_graph import LaneGraph
 
 
@@ -22,7 +22,7 @@ def identical_points(xy: np.ndarray) -> tuple[np.ndarray, int]:
     return _identical_points(xy, np.argsort(xy[:, 0]))  # numpy's sort is the faster one
 
 
-@numba.njit(cache=True)
+@kernel
 def _identical_points(xy, order):
     same = np.arange(len(xy))  # a point with the same coordinates met before in the sort, or itself
     s = 0
@@ -54,7 +54,7 @@ def _identical_points(xy, order):
     return vertex, n
 
 
-@numba.njit(cache=True)
+@kernel
 def _unique_edges(src, dst, n, directed):
     keep = np.flatnonzero(src != dst)
     key = src[keep] * n + dst[keep]
@@ -96,7 +96,7 @@ class Dense:
         return len(self.xy)
 
 
-@numba.njit(cache=True)
+@kernel
 def split_into_parts(xy, src, dst, step, eps):
     """Edges src -> dst split into k = max(1, ceil(L / step - eps)) equal parts. Returns the points
     (xy, then each edge's inner points xy[src] + (xy[dst] - xy[src]) * (i / k)) and the sub-edges
@@ -126,7 +126,7 @@ def split_into_parts(xy, src, dst, step, eps):
     return points, sub_src, sub_dst, sub_w
 
 
-@numba.njit(cache=True)
+@kernel
 def _adjacency(vertex, n, sub_src, sub_dst, sub_w, directed):
     """CSR (indptr, nbr, weight) and junction flags over the vertices (identical points made one):
     one edge per (src, dst), the shortest, no self-loops; both ways when undirected."""
@@ -188,7 +188,7 @@ def densify(graph: LaneGraph, step: float) -> dict[str, Dense]:
     return out
 
 
-@numba.njit(cache=True)
+@kernel
 def _chain_order(indptr, nbr, weight, directed):
     """A lane graph densified at 0.15 m is mostly chains: runs of vertices with one way in and one way
     on (directed) or two neighbours (undirected). The other vertices are hubs; a closed run without

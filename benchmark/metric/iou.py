@@ -6,15 +6,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from benchmark.metric.params import EPS, MetricParams
 from pipeline.geometry import Range
+from pipeline.kernels import kernel
 from pipeline.lane_graph import LaneGraph
 
 
-@numba.njit(cache=True)
+@kernel
 def _draw(xy, src, dst, x_min, y_max, res, rows, cols, half_width):
     """Cells whose centre lies within half_width of a segment src -> dst (src == dst: of a point)."""
     mask = np.zeros((rows, cols), np.bool_)

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from benchmark.metric.candidates import Candidates
+from pipeline.kernels import kernel
 
 
-@numba.njit(cache=True)
+@kernel
 def _greedy(cand_a, cand_b, n_a, n_b):
     """Take the pairs in rank order, keeping one when neither end is taken yet.
     Returns each vertex's partner (-1: none) and the rank of its pair."""

@@ -6,11 +6,11 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-import numba
 import numpy as np
 
 from benchmark.metric.densify import identical_points, unique_edges
 from pipeline.geometry import Range, resample_polylines
+from pipeline.kernels import kernel
 from pipeline.lane_graph import LaneGraph
 from pipeline.pieces import graph_to_pieces
 
@@ -176,13 +176,13 @@ def relaxation(gt: Lanes, params: OpenLaneV2Params) -> np.ndarray:
 # The kernels
 
 
-@numba.njit(cache=True)
+@kernel
 def _point_distance(a, b):
     dx, dy = a[0] - b[0], a[1] - b[1]
     return np.sqrt(dx * dx + dy * dy)
 
 
-@numba.njit(cache=True)
+@kernel
 def nearest_lanes(gt, pred, factor, bound):
     """For each predicted lane, the GT lane at the smallest relaxed discrete Fréchet distance (the first
     on ties) and that distance; (-1, inf) when none is below `bound`.
@@ -227,7 +227,7 @@ def nearest_lanes(gt, pred, factor, bound):
     return nearest, best
 
 
-@numba.njit(cache=True)
+@kernel
 def greedy_match(order, nearest, best, threshold, n_gt):
     """The predictions in `order`: each whose nearest GT lane is closer than `threshold` takes it if it
     is free (a true positive), else it is a false positive. Returns (tp, the GT lane of each tp or -1)."""
@@ -242,7 +242,7 @@ def greedy_match(order, nearest, best, threshold, n_gt):
     return tp, match
 
 
-@numba.njit(cache=True)
+@kernel
 def lane_aps(truth, confidence, threshold, grouped):
     """Each row's AP: the columns with `truth` against those with `confidence` above `threshold`, ranked
     by decreasing confidence (ties in column order): the sum of the precision at each true one over

@@ -9,16 +9,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from benchmark.metric.candidates import Candidates, _rows
 from benchmark.metric.densify import Dense
 from benchmark.metric.matching import Matching, optimal_partners
 from benchmark.metric.params import EPS, MetricParams
+from pipeline.kernels import kernel
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _walk(first, last, w_in, w_exit, entry_hub, exit_hub, v, d, forward, limit, stamp, sid, out, count):
     """From chain vertex v, at distance d < limit, along its chain: marks (stamp == sid, appended to
     out) the vertices closer than limit; returns (count, the hub at the chain's end, or -1 when that
@@ -44,7 +44,7 @@ def _walk(first, last, w_in, w_exit, entry_hub, exit_hub, v, d, forward, limit, 
     return count, entry_hub[v], d + w_in[v]
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _reach(
     indptr, nbr, weight, is_hub, first, last, w_in, w_exit, entry_hub, exit_hub, directed,
     source, limit, hub_dist, stamp, queued, queue, sid, out,
@@ -127,7 +127,7 @@ def _reach(
     return count
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _heap_push(keys, vals, size, key, val):
     i = size
     while i > 0 and keys[(i - 1) // 2] > key:
@@ -137,7 +137,7 @@ def _heap_push(keys, vals, size, key, val):
     return size + 1
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _heap_pop(keys, vals, size):
     top_key, top_val = keys[0], vals[0]
     size -= 1
@@ -155,7 +155,7 @@ def _heap_pop(keys, vals, size):
     return top_key, top_val, size
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _next_pair(ptr, ranks, other_end, other_stamp, sid, v, after):
     """The first pair of v ranked after `after` whose other end is in the other Reach set, or -1."""
     for i in range(ptr[v], ptr[v + 1]):
@@ -165,7 +165,7 @@ def _next_pair(ptr, ranks, other_end, other_stamp, sid, v, after):
     return -1
 
 
-@numba.njit(cache=True)
+@kernel
 def _pair_counts(
     pair_a, pair_b, limit, cand_a, cand_b, a_ptr, a_rank, b_ptr, b_rank, partner_a, partner_b, rank_a, rank_b,
     a_indptr, a_nbr, a_weight, a_is_hub, a_first, a_last, a_w_in, a_w_exit, a_entry, a_exit, directed,
@@ -282,7 +282,7 @@ class PairCounts:
     matched: np.ndarray  # |M(S_p, S_g)|
 
 
-@numba.njit(cache=True)
+@kernel
 def _renumbered(cand_a, cand_b, partner_a, partner_b, rank_a, rank_b, new_of_a, order_a, new_of_b, order_b):
     """The candidates and the matching in the kernels' chain-major numbering (ranks keep their order)."""
     cand_a, cand_b = new_of_a[cand_a], new_of_b[cand_b]

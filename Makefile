@@ -61,7 +61,7 @@ demo-all: $(STAMP) $(KERNELS)
 # The learning contract (tests/test_baselines_learning.py) runs alone, not in `make test`: five trainings
 # of the tiny preset's 880 steps take 20-30 minutes on 2 cores. LANEGRAPH_LEARNING_SEED=2 for another seed.
 test: $(STAMP) $(KERNELS)
-	$(PY) -m pytest -n 2 tests
+	LANEGRAPH_AOT_REQUIRED=1 $(PY) -m pytest -n 2 tests
 
 test-learning: $(STAMP)
 	LANEGRAPH_LEARNING_CHECK=1 $(PY) -m pytest -s tests/test_baselines_learning.py
@@ -141,6 +141,7 @@ bench: $(STAMP) $(KERNELS)
 	$(PY) -m tools.bench_splits
 	$(PY) -m tools.bench_openlanev2
 	$(PY) -m tools.bench_cgnet
+	$(PY) -m tools.bench_startup
 
 bench-train: $(STAMP)
 	$(PY) -m tools.bench_train

@@ -44,6 +44,9 @@ class Kernel:
             self._dispatcher = numba.njit(cache=True, **self.options)(self.py_func)
         return self._dispatcher
 
+    def __reduce__(self):  # pickled by name, as the function it wraps would be
+        return _named, (self.__module__, self.__qualname__)
+
     def __call__(self, *args):
         if _RECORDED is not None:
             return _record(self, args)
@@ -53,6 +56,10 @@ class Kernel:
             if fn is not None:
                 return fn(*args)
         return self.dispatcher(*args)
+
+
+def _named(module: str, qualname: str) -> Kernel:
+    return getattr(importlib.import_module(module), qualname)
 
 
 def kernel(py_func=None, **options):

@@ -4,9 +4,9 @@ found): pipeline/_aot_kernels.*.so and pipeline/_aot_kernels.json. `make` runs i
     python -m tools.build_kernels
 
 The argument types are those of real calls: in a temporary folder a tiny synthetic nuScenes world is
-prepared, then `cli score` scores a graph table, a MapTRv2 file and a CGNet file of it under every metric,
-with every kernel under numba and its calls recorded; each recorded (kernel, argument types) is exported.
-numba.pycc builds it for any x86-64 CPU, as a wheel would be.
+prepared, then `cli score`'s scoring (benchmark.score.score) scores a graph table, a MapTRv2 file and a CGNet
+file of it under every metric, every kernel under numba and its calls recorded; each recorded (kernel,
+argument types) is exported. numba.pycc builds them for any x86-64 CPU.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from pipeline import kernels
 from pipeline.io import read_table
 from pipeline.lane_graph import LaneGraph
 
-METRICS = "lanegap,cgnet,openlanev2"
+METRICS = ("lanegap", "cgnet", "openlanev2")
 
 
 def noisy(g: LaneGraph, rng: np.random.Generator) -> LaneGraph:
@@ -58,10 +58,9 @@ def results_file(path: Path, data: Path, table: str, cls: tuple[str, int]) -> Pa
 
 
 def workload(tmp: Path) -> None:
-    """`cli score` on a graph table, a MapTRv2 file and a CGNet file, every metric."""
-    from typer.main import get_command
-
-    import cli
+    """What `cli score` runs on a graph table, a MapTRv2 file and a CGNet file, every metric."""
+    from benchmark.metric.bootstrap import DRAWS
+    from benchmark.score import score
     from pipeline.prepare import prepare
     from pipeline.synth import synth
     from pipeline.targets import TargetOptions
@@ -73,18 +72,13 @@ def workload(tmp: Path) -> None:
     graphs = graphs_from_table(read_graph_table(data), data)
     rows = [graph_row(frame_id, noisy(g, rng)) for frame_id, g in sorted(graphs.items())]
     pq.write_table(pa.Table.from_pylist(rows), tmp / "pred.parquet")
-    command = get_command(cli.app)
-    runs = [
-        ["--pred", str(tmp / "pred.parquet")],
-        ["--pred", str(results_file(tmp / "maptrv2.json", data, "paths", ("centerline", 3))),
-         "--format", "maptrv2"],
-        ["--pred", str(results_file(tmp / "cgnet.json", data, "pieces", ("centerline", 0))),
-         "--format", "cgnet"],
-    ]  # fmt: skip
-    for args in runs:
-        command.main(
-            ["score", *args, "--gt", str(data), "--metric", METRICS, "--json"], standalone_mode=False
-        )
+    runs = {
+        "graph": tmp / "pred.parquet",
+        "maptrv2": results_file(tmp / "maptrv2.json", data, "paths", ("centerline", 3)),
+        "cgnet": results_file(tmp / "cgnet.json", data, "pieces", ("centerline", 0)),
+    }
+    for fmt, pred in runs.items():
+        score(pred, data, fmt=fmt, bootstrap=DRAWS, metrics=METRICS)
 
 
 def main() -> None:

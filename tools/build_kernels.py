@@ -24,15 +24,9 @@ import pyarrow.parquet as pq
 from benchmark.graph_table import graph_row, graphs_from_table, read_graph_table
 from pipeline import kernels
 from pipeline.io import read_table
-from pipeline.lane_graph import LaneGraph
+from tools.bench_cgnet import noisy
 
 METRICS = ("lanegap", "cgnet", "openlanev2")
-
-
-def noisy(g: LaneGraph, rng: np.random.Generator) -> LaneGraph:
-    keep = rng.random(len(g.src)) >= 0.1
-    dx, dy = rng.normal(0.0, 0.1, (2, len(g.x))).astype(np.float32)
-    return LaneGraph(g.x + dx, g.y + dy, g.src[keep], g.dst[keep])
 
 
 def results_file(path: Path, data: Path, table: str, cls: tuple[str, int]) -> Path:

@@ -2,8 +2,8 @@
 the JIT's scores to the last digit without importing numba; a call of other argument types, a stale build or
 LANEGRAPH_JIT=1 runs under numba.
 
-`make test` builds the kernels first and sets LANEGRAPH_AOT_REQUIRED=1: there a missing or stale build fails
-instead of skipping."""
+`make test` builds the kernels first (where a C compiler is) and then sets LANEGRAPH_AOT_REQUIRED=1: there a
+stale build fails instead of skipping."""
 
 from __future__ import annotations
 

@@ -118,44 +118,38 @@ def source_hashes(root: Path | None = None) -> dict[str, str]:
     return {f.relative_to(root).as_posix(): hashlib.sha256(f.read_bytes()).hexdigest() for f in files}
 
 
-@functools.cache
 def aot_status() -> str:
-    """Why the ahead-of-time build is used or not, in one line."""
-    _aot()
-    return _STATUS[0]
+    """Whether the ahead-of-time build is used, and why not, in one line."""
+    return _load()[0]
 
 
-_STATUS = ["not read"]
-
-
-@functools.cache
 def _aot() -> dict[str, dict[tuple, object]]:
     """key -> {argument types -> compiled function} of a build made from these sources; {} otherwise."""
+    return _load()[1]
+
+
+@functools.cache
+def _load() -> tuple[str, dict[str, dict[tuple, object]]]:
     if os.environ.get("LANEGRAPH_JIT") == "1":
-        _STATUS[0] = "not used: LANEGRAPH_JIT=1"
-        return {}
+        return "not used: LANEGRAPH_JIT=1", {}
     try:
         index = json.loads(AOT_INDEX.read_text())
     except (OSError, ValueError):
-        _STATUS[0] = f"not built ({AOT_INDEX.name} absent or unreadable): `python -m tools.build_kernels`"
-        return {}
+        return f"not built ({AOT_INDEX.name} absent or unreadable): `python -m tools.build_kernels`", {}
     if index.get("numpy") != np.__version__:
-        _STATUS[0] = f"stale: built for numpy {index.get('numpy')}, not {np.__version__}"
-        return {}
+        return f"stale: built for numpy {index.get('numpy')}, not {np.__version__}", {}
     changed = sorted(set(index.get("sources", {}).items()) ^ set(source_hashes().items()))
     if changed:
-        _STATUS[0] = f"stale: {changed[0][0]} is not the build's source; `python -m tools.build_kernels`"
-        return {}
+        return f"stale: {changed[0][0]} is not the build's source; `python -m tools.build_kernels`", {}
     try:
         module = importlib.import_module(f"{__package__}.{AOT_NAME}")
     except ImportError as error:
-        _STATUS[0] = f"not loadable ({error})"
-        return {}
-    table: dict[str, dict[tuple, object]] = {}
-    for key, versions in index["kernels"].items():
-        table[key] = {_hashable(types): getattr(module, name) for types, name in versions}
-    _STATUS[0] = f"used: {sum(map(len, table.values()))} versions of {len(table)} kernels"
-    return table
+        return f"not loadable ({error})", {}
+    table = {
+        key: {_hashable(types): getattr(module, name) for types, name in versions}
+        for key, versions in index["kernels"].items()
+    }
+    return f"used: {sum(map(len, table.values()))} versions of {len(table)} kernels", table
 
 
 def _hashable(value):

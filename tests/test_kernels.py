@@ -37,12 +37,10 @@ def require_build() -> None:
 @pytest.fixture
 def fresh_status(monkeypatch):
     """pipeline.kernels reads its build again in the test, and again after it."""
-    kernels._aot.cache_clear()
-    kernels.aot_status.cache_clear()
+    kernels._load.cache_clear()
     yield monkeypatch
     monkeypatch.undo()
-    kernels._aot.cache_clear()
-    kernels.aot_status.cache_clear()
+    kernels._load.cache_clear()
 
 
 def test_argument_types_tell_apart_what_numba_types_apart():
@@ -122,10 +120,10 @@ def test_a_build_of_other_sources_or_numpy_is_not_used(fresh_status, tmp_path):
     sources = kernels.source_hashes()
     first = sorted(sources)[0]
     index.write_text(json.dumps({"numpy": np.__version__, "sources": {**sources, first: "0"}, "kernels": {}}))
-    kernels._aot.cache_clear(), kernels.aot_status.cache_clear()
+    kernels._load.cache_clear()
     assert kernels.aot_status().startswith(f"stale: {first} is not the build's source")
     index.write_text(json.dumps({"numpy": "1.0", "sources": sources, "kernels": {}}))
-    kernels._aot.cache_clear(), kernels.aot_status.cache_clear()
+    kernels._load.cache_clear()
     assert kernels.aot_status() == f"stale: built for numpy 1.0, not {np.__version__}"
     assert kernels._aot() == {}
 

@@ -8,7 +8,7 @@ DEMO_TRAIN :=
 CLI := .venv/bin/cli
 KERNELS := pipeline/_aot_kernels.json
 
-.PHONY: demo demo-all test test-learning wheel-smoke gpu-check gpu-smoke gpu-dryrun wheelhouse bench \
+.PHONY: demo demo-all kernels test test-learning wheel-smoke gpu-check gpu-smoke gpu-dryrun wheelhouse bench \
 	bench-train bench-step lint clean
 
 # The lock is the whole closure, installed --no-deps: one OpenCV, the headless build (av2 declares the GUI
@@ -44,20 +44,24 @@ define demo_pipeline
 	$(CLI) report --runs $(1)/runs --roundtrip $(1)/roundtrip_path.json --roundtrip $(1)/roundtrip_piece.json --roundtrip $(1)/roundtrip_pixel.json --out $(1)/report $(3)
 endef
 
-# The kernels that `cli score` calls, compiled ahead of time (pipeline/kernels.py; ~1 minute): again whenever
-# a module of pipeline/ or benchmark/ changed, since a build of other sources is not used. It needs a C
-# compiler; without one the kernels run under numba's JIT (the same scores, a slower start).
+# `make kernels`: the kernels that `cli score` calls, compiled ahead of time (pipeline/kernels.py; 40 s, 2
+# minutes from a fresh clone), so that it starts without numba; `make test` and `make bench` build them first.
+# Again whenever a module of pipeline/ or benchmark/ changed, since a build of other sources is not used. It
+# needs a C compiler; without one the kernels run under numba's JIT (the same scores, a slower start). The
+# demo does not wait for it: it would add about 2 minutes to the demo's 15 and save it a few seconds.
+kernels: $(KERNELS)
+
 $(KERNELS): $(STAMP) tools/build_kernels.py $(shell find pipeline benchmark -name '*.py')
 	if command -v cc >/dev/null 2>&1; then $(PY) -m tools.build_kernels; else \
 		echo "no C compiler (cc): the kernels are not built ahead of time and run under numba's JIT"; fi
 
 # Two models, under 15 minutes on 2 cores from a fresh clone: 7 epochs (560 steps) where the tiny preset,
 # demo-all and the learning checks train 11 (880 steps); docs/BENCHMARKS.md has its time and breakdown.
-demo: $(STAMP) $(KERNELS)
+demo: $(STAMP)
 	$(call demo_pipeline,$(DEMO),hdmapnet lanegap,,--epochs 7)
 
 # All four models under the same recipe, then the report with the paper's tables beside it.
-demo-all: $(STAMP) $(KERNELS)
+demo-all: $(STAMP)
 	$(call demo_pipeline,$(DEMO_ALL),hdmapnet lanegap maptr stsu,--reference paper)
 
 # The learning contract (tests/test_baselines_learning.py) runs alone, not in `make test`: five trainings

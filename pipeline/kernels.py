@@ -3,7 +3,7 @@
 `@kernel` (or `@kernel(inline="always")`) marks a numba kernel, compiled with `cache=True` as `numba.njit`
 would. Importing a module of kernels does not import numba: numba's import and the start of its compiler,
 even for cached kernels, are most of a one-frame `cli score`. A call runs the ahead-of-time build
-of the kernel (`python -m tools.build_kernels`, which `make` runs: pipeline/_aot_kernels.*.so and its
+of the kernel (`make kernels`, which `make test` runs: pipeline/_aot_kernels.*.so and its
 .json) when that build was made from these very sources and holds the call's argument types; any other call
 imports numba and compiles as before. Both are numba's code generation of the same source;
 tests/test_kernels.py holds them equal. LANEGRAPH_JIT=1 never uses the build.
@@ -135,12 +135,12 @@ def _load() -> tuple[str, dict[str, dict[tuple, object]]]:
     try:
         index = json.loads(AOT_INDEX.read_text())
     except (OSError, ValueError):
-        return f"not built ({AOT_INDEX.name} absent or unreadable): `python -m tools.build_kernels`", {}
+        return f"not built ({AOT_INDEX.name} absent or unreadable): `make kernels`", {}
     if index.get("numpy") != np.__version__:
         return f"stale: built for numpy {index.get('numpy')}, not {np.__version__}", {}
     changed = sorted(set(index.get("sources", {}).items()) ^ set(source_hashes().items()))
     if changed:
-        return f"stale: {changed[0][0]} is not the build's source; `python -m tools.build_kernels`", {}
+        return f"stale: {changed[0][0]} is not the build's source; `make kernels`", {}
     try:
         module = importlib.import_module(f"{__package__}.{AOT_NAME}")
     except ImportError as error:

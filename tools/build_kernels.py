@@ -1,5 +1,6 @@
 """Compile the kernels that `cli score` calls ahead of time (pipeline/kernels.py says why and how they are
-found): pipeline/_aot_kernels.*.so and pipeline/_aot_kernels.json. `make` runs it when a module changed.
+found): pipeline/_aot_kernels.*.so and pipeline/_aot_kernels.json. `make kernels` runs it when a module
+changed, and so do `make test` and `make bench`.
 
     python -m tools.build_kernels
 

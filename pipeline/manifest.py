@@ -76,7 +76,7 @@ class PreparedData:
 
     @property
     def kind(self) -> str | None:
-        """ "nuscenes" or "av2" as the manifest records it; None without one."""
+        """"nuscenes" or "av2" as the manifest records it; None without one."""
         return self.manifest.get("dataset")
 
     @property

@@ -639,3 +639,4 @@ def prepare(
     cells = plan.geo.cells if plan.geo is not None else None
     draw_dataset_splits(out, out / "splits.png", cells, splits.geo_cell if cells else None)
     return summary
+

@@ -27,15 +27,8 @@ from pipeline.manifest import PreparedData
 
 STEPS_PER_EPOCH = 6  # test_faults' toy run: 12 frames, 2 per step, 3 epochs
 # every path kept, so that the scores compared are not all 0 (3 epochs score no path above 0.5)
-LONG = [
-    *TRAIN,
-    "--checkpoint-every",
-    "4",
-    "--set",
-    "decoder.score_threshold=0.0",
-    "--best-metric",
-    "directed_topo_f1",
-]  # the toy lanes have no junction: their Junction TOPO F1 is 0 at every epoch
+LONG = [*TRAIN, "--checkpoint-every", "4", "--set", "decoder.score_threshold=0.0", "--best-metric",
+        "directed_topo_f1"]  # the toy lanes have no junction: their Junction TOPO F1 is 0 at every epoch
 
 
 def records(path: Path) -> list[dict]:

@@ -82,9 +82,9 @@ def test_cli_report_adds_a_table_per_other_metric(synth_prepared, tmp_path):
     score(data / "graphs", data, tmp_path / "runs" / "gt_as_prediction", bootstrap=0)  # an external run
     report = write_report([tmp_path / "runs"], tmp_path / "report", draws=0, metrics=METRICS)
     text = report.path.read_text()
-    table = text[text.index("### OpenLane-V2's DET_l and TOP_ll") :]
+    table = text[text.index("### OpenLane-V2's DET_l and TOP_ll"):]
     assert "| run | DET_l | TOP_ll |" in table and "| gt_as_prediction | 100.0 | 100.0 |" in table
-    cgnet = text[text.index("### CGNet's metric") :]
+    cgnet = text[text.index("### CGNet's metric"):]
     assert "| run | GEO P | GEO R | GEO F1 | TOPO P |" in cgnet
     assert "| gt_as_prediction | 100.0 | 100.0 | 100.0 | 100.0 |" in cgnet
     plain = write_report([tmp_path / "runs"], tmp_path / "plain", draws=0).path.read_text()

@@ -65,13 +65,7 @@ def test_torchrun_two_processes_match_one_process(tmp_path):
 
     # (a) rank 0 alone writes: one log line per step, the run's files and nothing else
     assert sorted(p.name for p in run.iterdir()) == [
-        "best.pt",
-        "checkpoint.pt",
-        "config.json",
-        "log.jsonl",
-        "run.json",
-        "tb",
-        "val.jsonl",
+        "best.pt", "checkpoint.pt", "config.json", "log.jsonl", "run.json", "tb", "val.jsonl"
     ]
     log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log] == [1, 2]  # 8 frames, 2 per process and step

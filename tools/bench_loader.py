@@ -151,9 +151,7 @@ def run(data: str, modality: str, workers: int, batch_size: int, profile: bool =
     args = json.dumps([data, modality, workers, batch_size, profile])
     result = subprocess.run(
         [sys.executable, "-m", "tools.bench_loader", "--measure", args],
-        capture_output=True,
-        text=True,
-        cwd=REPO,
+        capture_output=True, text=True, cwd=REPO
     )
     if result.returncode:
         sys.exit(f"{modality} with {workers} workers on {data} failed:\n{result.stderr[-4000:]}")

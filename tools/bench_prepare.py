@@ -25,6 +25,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 
+
 def make_root(source: Path, repeat: int, folder: Path) -> Path:
     """A dataset root whose split folders hold each real log `repeat` times (symlinked copies)."""
     root = folder / "sensor"

@@ -5,8 +5,10 @@ would. Importing a module of kernels does not import numba: numba's import and t
 even for cached kernels, are most of a one-frame `cli score`. A call runs the ahead-of-time build
 of the kernel (`make kernels`, which `make test` runs: pipeline/_aot_kernels.*.so and its
 .json) when that build was made from these very sources and holds the call's argument types; any other call
-imports numba and compiles as before. Both are numba's code generation of the same source;
-tests/test_kernels.py holds them equal. LANEGRAPH_JIT=1 never uses the build.
+imports numba and compiles as before. The index (.json) names the one compiled module of the build and its
+sha256: only that file is loaded, and only when its bytes are the build's; any other file beside it is not.
+Both are numba's code generation of the same source; tests/test_kernels.py holds them equal.
+LANEGRAPH_JIT=1 never uses the build.
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib
+import importlib.machinery
+import importlib.util
 import json
 import os
 from pathlib import Path
@@ -118,6 +122,18 @@ def source_hashes(root: Path | None = None) -> dict[str, str]:
     return {f.relative_to(root).as_posix(): hashlib.sha256(f.read_bytes()).hexdigest() for f in files}
 
 
+def file_digest(path: Path) -> str:
+    """sha256 of a file's bytes, as the index records its compiled module."""
+    with path.open("rb") as file:
+        return hashlib.file_digest(file, "sha256").hexdigest()
+
+
+def compiled_modules(folder: Path) -> list[Path]:
+    """Every compiled module of the build in `folder`, of this Python or any other: each file named
+    _aot_kernels.* but the index."""
+    return sorted(f for f in folder.glob(AOT_NAME + ".*") if f.name != AOT_NAME + ".json")
+
+
 def aot_status() -> str:
     """Whether the ahead-of-time build is used, and why not, in one line."""
     return _load()[0]
@@ -141,8 +157,24 @@ def _load() -> tuple[str, dict[str, dict[tuple, object]]]:
     changed = sorted(set(index.get("sources", {}).items()) ^ set(source_hashes().items()))
     if changed:
         return f"stale: {changed[0][0]} is not the build's source; `make kernels`", {}
+    record = index.get("module")
+    if not (isinstance(record, dict) and isinstance(record.get("file"), str) and "sha256" in record):
+        return f"not used: {AOT_INDEX.name} names no compiled module; `make kernels`", {}
+    suffixes = importlib.machinery.EXTENSION_SUFFIXES
+    if record["file"] not in {AOT_NAME + suffix for suffix in suffixes}:
+        # a path elsewhere, or a module of another Python's or platform's suffix
+        why = f"{AOT_INDEX.name} names {record['file']!r}, not a module of this Python beside it"
+        return f"not used: {why}", {}
+    path = AOT_INDEX.parent / record["file"]
     try:
-        module = importlib.import_module(f"{__package__}.{AOT_NAME}")
+        digest = file_digest(path)
+    except OSError:
+        return f"not built ({record['file']} absent or unreadable): `make kernels`", {}
+    if digest != record["sha256"]:
+        why = f"{record['file']} is not the module the build made (its sha256 differs)"
+        return f"not used: {why}; `make kernels`", {}
+    try:
+        module = _load_module(path)
     except ImportError as error:
         return f"not loadable ({error})", {}
     table = {
@@ -150,6 +182,17 @@ def _load() -> tuple[str, dict[str, dict[tuple, object]]]:
         for key, versions in index["kernels"].items()
     }
     return f"used: {sum(map(len, table.values()))} versions of {len(table)} kernels", table
+
+
+def _load_module(path: Path):
+    """The extension module at exactly `path` (the import system would take whichever _aot_kernels.* it finds
+    first on the package's path)."""
+    name = f"{__package__}.{AOT_NAME}"
+    loader = importlib.machinery.ExtensionFileLoader(name, str(path))
+    spec = importlib.util.spec_from_file_location(name, path, loader=loader)
+    module = importlib.util.module_from_spec(spec)
+    loader.exec_module(module)
+    return module
 
 
 def _hashable(value):

@@ -132,3 +132,114 @@ def test_a_kernel_pickles_by_name():
     import pickle
 
     assert pickle.loads(pickle.dumps(densify._identical_points)) is densify._identical_points
+
+
+@pytest.fixture(scope="module")
+def small_build(tmp_path_factory):
+    """tools/build_kernels.py's main into a folder of its own, its workload one kernel call: a real
+    compiled module and its index, beside two earlier modules (this Python's and another's) and a file of
+    another name. Needs a C compiler, as `make kernels` does."""
+    import shutil
+
+    from tools import build_kernels
+
+    if shutil.which("cc") is None:
+        pytest.skip("no C compiler (cc): the kernels' build needs one")
+    folder = tmp_path_factory.mktemp("build")
+    strays = [folder / f"{kernels.AOT_NAME}.cpython-312-x86_64-linux-gnu.so",
+              folder / f"{kernels.AOT_NAME}{kernels.importlib.machinery.EXTENSION_SUFFIXES[0]}"]  # fmt: skip
+    for stray in strays:
+        stray.write_bytes(b"an earlier build")
+    (folder / "kernels.py").write_text("kept")
+    xy = np.round(np.random.default_rng(0).uniform(0, 5, (400, 2)), 0)
+    order = np.argsort(xy[:, 0])
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(kernels, "AOT_INDEX", folder / f"{kernels.AOT_NAME}.json")
+        patch.setattr(kernels, "_RECORDED", None)  # the build records calls; restored after it
+        patch.setattr(build_kernels, "workload", lambda tmp: densify._identical_points(xy, order))
+        build_kernels.main()
+    return folder
+
+
+def test_a_rebuild_removes_every_earlier_module_and_its_index_names_the_new_one(small_build, fresh_status):
+    index = json.loads((small_build / f"{kernels.AOT_NAME}.json").read_text())
+    module = small_build / f"{kernels.AOT_NAME}{kernels.importlib.machinery.EXTENSION_SUFFIXES[0]}"
+    assert index.get("module", {}).get("file") == module.name
+    assert sorted(p.name for p in small_build.iterdir()) == sorted(
+        [module.name, f"{kernels.AOT_NAME}.json", "kernels.py"]
+    )
+    assert module.read_bytes() != b"an earlier build"
+    assert index["module"]["sha256"] == kernels.hashlib.sha256(module.read_bytes()).hexdigest()
+    fresh_status.setattr(kernels, "AOT_INDEX", small_build / f"{kernels.AOT_NAME}.json")
+    assert kernels.aot_status() == "used: 1 versions of 1 kernels"
+    xy = np.round(np.random.default_rng(1).uniform(0, 5, (300, 2)), 0)
+    order = np.argsort(xy[:, 0])
+    built = kernels._aot()[densify._identical_points.key][kernels.argument_types((xy, order))]
+    same, jit = built(xy, order.copy()), densify._identical_points.dispatcher(xy, order.copy())
+    assert same[1] == jit[1] and np.array_equal(same[0], jit[0])
+
+
+@pytest.fixture
+def loads(fresh_status):
+    """Every extension module loaded from now on (its path), whichever way it is imported."""
+    from importlib.machinery import ExtensionFileLoader
+
+    loaded: list[str] = []
+    create = ExtensionFileLoader.create_module
+    fresh_status.setattr(ExtensionFileLoader, "create_module", lambda self, spec: loaded.append(self.path)
+                         or create(self, spec))  # fmt: skip
+    fresh_status.delitem(sys.modules, f"pipeline.{kernels.AOT_NAME}", raising=False)
+    return loaded
+
+
+def copy_build(build: Path, to: Path, monkeypatch) -> tuple[Path, dict]:
+    """The small build in a folder of its own, its index the one pipeline.kernels reads, and the folder on
+    the package's import path as if beside pipeline/kernels.py: its module's path and its index."""
+    import shutil
+
+    import pipeline
+
+    shutil.copytree(build, to)
+    monkeypatch.setattr(kernels, "AOT_INDEX", to / f"{kernels.AOT_NAME}.json")
+    monkeypatch.setattr(pipeline, "__path__", [str(to), *pipeline.__path__])
+    module = to / f"{kernels.AOT_NAME}{kernels.importlib.machinery.EXTENSION_SUFFIXES[0]}"
+    return module, json.loads(kernels.AOT_INDEX.read_text())
+
+
+def test_a_module_whose_digest_differs_from_the_index_is_not_loaded(small_build, loads, fresh_status,
+                                                                     tmp_path):  # fmt: skip
+    module, index = copy_build(small_build, tmp_path / "build", fresh_status)
+    module.write_bytes(module.read_bytes() + b"\0")  # still a loadable module, but not the build's
+    assert kernels.aot_status() == (
+        f"not used: {module.name} is not the module the build made (its sha256 differs); `make kernels`"
+    )
+    assert kernels._aot() == {} and loads == []
+
+
+def test_a_module_the_index_does_not_name_is_never_loaded(small_build, loads, fresh_status, tmp_path):
+    """A loadable module beside the index and on the package's import path: neither an index that names no
+    module, nor one that names another file (absent, elsewhere or of another Python) loads it."""
+    module, index = copy_build(small_build, tmp_path / "build", fresh_status)
+    index_path = kernels.AOT_INDEX
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / module.name).write_bytes(module.read_bytes())
+    unnamed = {key: value for key, value in index.items() if key != "module"}
+    digest = kernels.hashlib.sha256(module.read_bytes()).hexdigest()
+    absent = {"file": f"{kernels.AOT_NAME}.abi3.so", "sha256": digest}
+    elsewhere = {"file": f"../other/{module.name}", "sha256": digest}
+    another_python = {"file": f"{kernels.AOT_NAME}.cpython-312-x86_64-linux-gnu.so", "sha256": digest}
+    for written, status in (
+        (unnamed, f"not used: {index_path.name} names no compiled module; `make kernels`"),
+        ({**index, "module": absent},
+         f"not built ({kernels.AOT_NAME}.abi3.so absent or unreadable): `make kernels`"),
+        ({**index, "module": elsewhere},
+         f"not used: {index_path.name} names '{elsewhere['file']}', not a module of this Python beside it"),
+        ({**index, "module": another_python},
+         f"not used: {index_path.name} names '{kernels.AOT_NAME}.cpython-312-x86_64-linux-gnu.so', not a "
+         "module of this Python beside it"),
+    ):  # fmt: skip
+        index_path.write_text(json.dumps(written))
+        kernels._load.cache_clear()
+        assert kernels.aot_status() == status
+        assert loads == []

@@ -7,12 +7,16 @@ changed, and so do `make test` and `make bench`.
 The argument types are those of real calls: in a temporary folder a tiny synthetic nuScenes world is
 prepared, then `cli score`'s scoring (benchmark.score.score) scores a graph table, a MapTRv2 file and a CGNet
 file of it under every metric, every kernel under numba and its calls recorded; each recorded (kernel,
-argument types) is exported. numba.pycc builds them for any x86-64 CPU.
+argument types) is exported. numba.pycc builds them for any x86-64 CPU, into a temporary folder; then every
+earlier compiled module beside pipeline/kernels.py (of this Python or any other) is removed, the new one moved
+there, and the index written last with its file name and sha256: the loader loads that file alone, and only
+when its bytes are those the index records.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 import tempfile
 import time
 import warnings
@@ -52,6 +56,16 @@ def results_file(path: Path, data: Path, table: str, cls: tuple[str, int]) -> Pa
     return path
 
 
+def install_module(built: Path, folder: Path) -> dict[str, str]:
+    """Move the compiled module `built` into `folder` once every earlier one there is removed; the index's
+    record of it: {"file": its name, "sha256": its digest}."""
+    for earlier in kernels.compiled_modules(folder):
+        earlier.unlink()
+    target = folder / built.name
+    shutil.move(built, target)
+    return {"file": target.name, "sha256": kernels.file_digest(target)}
+
+
 def workload(tmp: Path) -> None:
     """What `cli score` runs on a graph table, a MapTRv2 file and a CGNet file, every metric."""
     from benchmark.metric.bootstrap import DRAWS
@@ -77,7 +91,9 @@ def workload(tmp: Path) -> None:
 
 
 def main() -> None:
-    from numba.pycc import CC
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numba.pycc's pending deprecation: it is what builds them today
+        from numba.pycc import CC
 
     start = time.perf_counter()
     sources = kernels.source_hashes()
@@ -87,26 +103,31 @@ def main() -> None:
         workload(Path(tmp))
     if kernels.source_hashes() != sources:
         raise SystemExit("tools.build_kernels: a module changed while it ran; run it again")
-    cc = CC(kernels.AOT_NAME)
-    cc.output_dir = str(kernels.AOT_INDEX.parent)
+    folder = kernels.AOT_INDEX.parent
     index: dict[str, list] = {}
-    for k, calls in sorted(recorded.items(), key=lambda item: item[0].key):
-        for types, numba_types in calls.items():
-            if numba_types not in k.dispatcher.overloads:
-                k.dispatcher.compile(numba_types)
-            name = f"k{sum(map(len, index.values()))}"
-            cc.export(name, k.dispatcher.overloads[numba_types].signature)(k.py_func)
-            index.setdefault(k.key, []).append([types, name])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # numba.pycc's pending deprecation: it is what builds them today
-        cc.compile()
+    with tempfile.TemporaryDirectory() as tmp:
+        cc = CC(kernels.AOT_NAME)
+        cc.output_dir = tmp
+        for k, calls in sorted(recorded.items(), key=lambda item: item[0].key):
+            for types, numba_types in calls.items():
+                if numba_types not in k.dispatcher.overloads:
+                    k.dispatcher.compile(numba_types)
+                name = f"k{sum(map(len, index.values()))}"
+                cc.export(name, k.dispatcher.overloads[numba_types].signature)(k.py_func)
+                index.setdefault(k.key, []).append([types, name])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # numba.pycc's pending deprecation: it is what builds them today
+            cc.compile()
+        module = install_module(Path(cc.output_dir, cc.output_file), folder)
     kernels.AOT_INDEX.write_text(
-        json.dumps({"numpy": np.__version__, "sources": sources, "kernels": index}, indent=1) + "\n"
-    )
+        json.dumps(
+            {"numpy": np.__version__, "sources": sources, "module": module, "kernels": index}, indent=1
+        ) + "\n"
+    )  # fmt: skip
     versions = sum(map(len, index.values()))
     print(
         f"compiled {versions} versions of {len(index)} kernels ahead of time in "
-        f"{time.perf_counter() - start:.0f} s: {cc.output_dir}/{kernels.AOT_NAME}.*.so, {kernels.AOT_INDEX}"
+        f"{time.perf_counter() - start:.0f} s: {folder / module['file']}, {kernels.AOT_INDEX}"
     )
 
 

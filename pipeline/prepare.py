@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
+import os
 import resource
 import time
 from collections.abc import Callable
@@ -21,14 +23,28 @@ from pipeline.errors import DataError
 from pipeline.executor import import_ray, run_local, run_ray
 from pipeline.geometry import matrix_quaternion
 from pipeline.lane_graph import LaneMap
+from pipeline.manifest import read_manifest
 from pipeline.progress import tracked
 from pipeline.records import Frame, Log, LogIndex
 from pipeline.splits.geographic import draw_dataset_splits
 from pipeline.splits.leakage import read_and_measure
-from pipeline.splits.plan import SCHEMES, geographic_plan, needs_index, plan_from_files, read_split_files
+from pipeline.splits.plan import (
+    SCHEMES,
+    geographic_plan,
+    needs_index,
+    plan_from_files,
+    read_split_files,
+    split_file_digests,
+)
 from pipeline.targets import FrameTargets, TargetOptions, flat_pose, frame_targets, warm_up
 
 console = Console(stderr=True)
+
+# the files a run writes besides the tables' shards (<split>__<log>.parquet)
+MANIFEST, ERRORS, PICTURE = "manifest.json", "errors.jsonl", "splits.png"
+# where an --overwrite run writes until all of it has succeeded, in OUT: the earlier output stays whole
+# until then, and OUT is on the same file system, so the new files move in by rename
+STAGE = ".overwrite"
 
 
 @dataclass(frozen=True)
@@ -99,7 +115,7 @@ def no_logs_found(dataset: str, root: Path, version: str, split: str | None) -> 
 
 def option_name(parameter: str) -> str:
     """The `cli prepare` option of a manifest parameter."""
-    return {"bev_range": "--range", "split_files": "--split-file"}.get(
+    return {"bev_range": "--range", "split_files": "--split-file", "split_file_sha256": "--split-file"}.get(
         parameter, f"--{parameter.replace('_', '-')}"
     )
 
@@ -321,8 +337,8 @@ def prepare_log(
 
 
 def remove_stale_shards(out: Path, job: Job) -> None:
-    """The log's shards of splits its plan no longer gives it (an --overwrite with other split files or
-    another scheme): its frames must not stand in two splits."""
+    """The log's shards of splits its plan no longer gives it (its folder moved to another split folder of
+    the same root): its frames must not stand in two splits."""
     planned = {f"{split}__{job.name}" for split in job.planned or {job.split}}
     for table in io.TABLES:
         for path in (out / table).glob(f"*__{job.name}.parquet"):
@@ -482,34 +498,98 @@ def manifest_parameters(options: TargetOptions, frame_stride: int, splits: Split
         parameters["split_files"] = {
             name: str(Path(path).resolve()) for name, path in splits.split_files.items()
         }
+        parameters["split_file_sha256"] = split_file_digests(splits.split_files)
     if splits.scheme == "geographic":
         parameters |= {"geo_cell": splits.geo_cell, "geo_buffer": splits.geo_buffer,
                        "geo_seed": splits.geo_seed}  # fmt: skip
     return parameters
 
 
-def check_manifest(out: Path, dataset: str, parameters: dict, overwrite: bool) -> None:
-    """Refuse to add to a folder prepared with other options or another schema version (unless
-    `overwrite`): shards made with other options must not be mixed with new ones."""
-    manifest_path = out / "manifest.json"
+def recorded_version(dataset: str, version: str) -> str | None:
+    """The --version a manifest records: nuScenes' table version; AV2 has none."""
+    return version if dataset == "nuscenes" else None
+
+
+def difference(key: str, old: dict, new: dict) -> str:
+    """How a manifest's record `old` differs from this run's `new` at `key`, as the option that makes it."""
+    if key == "split_file_sha256":  # the same paths (else their own difference says it), other contents
+        return ", ".join(
+            f"--split-file {name}={new['split_files'].get(name)} changed (sha256 {digest[:12]}, now "
+            f"{new[key].get(name, '')[:12]})"
+            for name, digest in old[key].items()
+            if digest != new[key].get(name)
+        )
+    return f"{option_name(key)} {shown(old.get(key))} (now {shown(new.get(key))})"
+
+
+def check_manifest(
+    out: Path, dataset: str, root: Path, version: str, parameters: dict, overwrite: bool
+) -> None:
+    """Refuse to add to a folder prepared from another raw dataset (--root, --version), with other
+    options, split files whose contents changed or another schema version (unless `overwrite`): shards
+    made otherwise must not be mixed with new ones. A manifest written before the split files' digests
+    were recorded cannot vouch for their contents, and is refused when it names split files."""
+    manifest_path = out / MANIFEST
     if not manifest_path.is_file() or overwrite:
         return
-    before = json.loads(manifest_path.read_text())
-    old = {"dataset": before.get("dataset"), "split_scheme": "original", **before.get("parameters", {})}
-    new = {"dataset": dataset, **parameters}
+    before = read_manifest(out)
+    old = {"dataset": before.get("dataset"), "root": before.get("root"), "version": before.get("version"),
+           "split_scheme": "original", **before.get("parameters", {})}  # fmt: skip
+    new = {"dataset": dataset, "root": str(root), "version": recorded_version(dataset, version), **parameters}
     differing = [key for key in {**old, **new} if key != "split" and old.get(key) != new.get(key)]
+    if "split_files" in differing or "split_file_sha256" not in old:
+        differing = [key for key in differing if key != "split_file_sha256"]  # said by the paths, or unknown
     if differing:
-        changes = ", ".join(
-            f"{option_name(k)} {shown(old.get(k))} (now {shown(new.get(k))})" for k in differing
-        )
+        changes = ", ".join(difference(key, old, new) for key in differing)
         raise ValueError(
             f"{out} was prepared with other options: {changes}; pass --overwrite or choose another --out"
+        )
+    if old.get("split_files") and "split_file_sha256" not in old:
+        raise ValueError(
+            f"{manifest_path}: records no digest of its --split-file contents (prepared by an earlier "
+            f"version), so whether {shown(old['split_files'])} changed cannot be told; pass --overwrite to "
+            "prepare it again, or choose another --out"
         )
     if before.get("schema_version") != io.SCHEMA_VERSION:
         raise ValueError(
             f"{manifest_path}: schema_version {before.get('schema_version')}, this version writes "
             f"{io.SCHEMA_VERSION}; pass --overwrite to prepare it again, or choose another --out"
         )
+
+
+def written_files(folder: Path) -> list[Path]:
+    """The files of `folder` that `cli prepare` writes, the manifest first: every table's shards
+    (<split>__<log>.parquet), errors.jsonl, splits.png, manifest.json, and what an interrupted atomic write
+    left (.<name>.tmp-<pid>). Nothing else: the user's own files in the folder are not ours to remove."""
+    found = []
+    for name in (MANIFEST, ERRORS, PICTURE):
+        found += [folder / name] if (folder / name).is_file() else []
+        found += sorted(folder.glob(f".{name}.tmp-*"))
+    for table in io.TABLES:
+        found += sorted((folder / table).glob("*__*.parquet"))
+        found += sorted((folder / table).glob(".*__*.parquet.tmp-*"))
+    return found
+
+
+def clear_stage(stage: Path) -> None:
+    """Remove an --overwrite run's work folder (what it wrote, then the folders if empty)."""
+    for path in written_files(stage):
+        path.unlink()
+    for folder in [stage / table for table in io.TABLES] + [stage]:
+        with contextlib.suppress(FileNotFoundError, OSError):  # absent, or holding what is not ours
+            folder.rmdir()
+
+
+def move_in(stage: Path, out: Path) -> None:
+    """The complete output of an --overwrite run replaces everything earlier runs wrote in `out` (the
+    manifest goes first and comes back last); files the project did not write stay."""
+    for path in written_files(out):
+        path.unlink()
+    for path in reversed(written_files(stage)):
+        target = out / path.relative_to(stage)
+        target.parent.mkdir(exist_ok=True)
+        os.replace(path, target)
+    clear_stage(stage)
 
 
 def run_jobs(
@@ -532,9 +612,9 @@ def run_jobs(
 def append_errors(out: Path, errors: list[dict]) -> None:
     """The records of the frames and logs that failed, added to out/errors.jsonl (atomically)."""
     if errors:
-        previous = (out / "errors.jsonl").read_text() if (out / "errors.jsonl").is_file() else ""
+        previous = (out / ERRORS).read_text() if (out / ERRORS).is_file() else ""
         lines = previous + "".join(json.dumps(e) + "\n" for e in errors)
-        io.write_atomic(out / "errors.jsonl", lambda tmp: tmp.write_text(lines))
+        io.write_atomic(out / ERRORS, lambda tmp: tmp.write_text(lines))
 
 
 def summarize(plan: Plan, todo: list[Job], results: list[LogResult], seconds: float, leakage: dict) -> dict:
@@ -563,12 +643,12 @@ def write_manifest(
     options: TargetOptions, summary: dict,
 ) -> None:  # fmt: skip
     io.write_json(
-        out / "manifest.json",
+        out / MANIFEST,
         {
             "schema_version": io.SCHEMA_VERSION,
             "dataset": dataset,
             "root": str(root),
-            "version": version if dataset == "nuscenes" else None,
+            "version": recorded_version(dataset, version),
             "parameters": {**parameters, "split": split},
             "range": {"x_min": options.bev_range.x_min, "x_max": options.bev_range.x_max,
                       "y_min": options.bev_range.y_min, "y_max": options.bev_range.y_max},
@@ -603,7 +683,9 @@ def prepare(
     log ids, scene names or frames}) replaces the dataset's own splits; logs and frames in no file are left
     out. split_scheme "geographic" puts frames in splits by place (SplitOptions, pipeline/splits/). Every
     run measures the leakage of the whole output's non-training splits (pipeline/splits/leakage.py) into
-    manifest.json and draws OUT/splits.png.
+    manifest.json and draws OUT/splits.png. overwrite: start afresh: the run writes into OUT/.overwrite
+    and, once all of it has succeeded, replaces what earlier runs wrote (written_files) with it; without
+    it, logs already done are kept and the folder must have been prepared the same way (check_manifest).
     executor: local (this process, or a fork pool of `workers`) or ray (one Ray task per log: a local
     instance of `workers` CPUs, or the cluster at address, "auto" or HOST:PORT; pipeline/executor.py)."""
     check_options(options, frame_stride, workers, on_error, executor)
@@ -615,11 +697,44 @@ def prepare(
         import_ray()
     root, out = Path(root).resolve(), Path(out)
     parameters = manifest_parameters(options, frame_stride, splits)
-    check_manifest(out, dataset, parameters, overwrite)
+    check_manifest(out, dataset, root, version, parameters, overwrite)
     plan = plan_jobs(dataset, root, version, split, frame_stride, splits)
+    run = Run(dataset, root, version, split, options, frame_stride, on_error, workers, executor, address)
     out.mkdir(parents=True, exist_ok=True)
+    if not overwrite:
+        return write_output(out, plan, splits, parameters, run, redo=False)
+    stage = out / STAGE
+    clear_stage(stage)  # what an interrupted --overwrite run left
+    try:
+        summary = write_output(stage, plan, splits, parameters, run, redo=True)
+        move_in(stage, out)
+    finally:
+        if stage.exists():  # the run failed: the earlier output stays as it was
+            clear_stage(stage)
+    return summary
+
+
+@dataclass(frozen=True)
+class Run:
+    """What one `prepare` call was asked for, besides the plan and the manifest's parameters."""
+
+    dataset: str
+    root: Path
+    version: str
+    split: str | None
+    options: TargetOptions
+    frame_stride: int
+    on_error: str
+    workers: int
+    executor: str
+    address: str | None
+
+
+def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, run: Run, redo: bool) -> dict:
+    """Prepare the plan's logs into out (those not already done there, or all with `redo`), then its
+    errors.jsonl, manifest.json and splits.png; returns the summary."""
     done = functools.partial(io.shard_done, out)
-    todo = [job for job in plan.jobs if overwrite or not all(map(done, job.shards))]
+    todo = [job for job in plan.jobs if redo or not all(map(done, job.shards))]
     start = time.perf_counter()
     columns = [
         TextColumn("prepare {task.description}"),
@@ -628,15 +743,15 @@ def prepare(
         TimeRemainingColumn(),
     ]
     with Progress(*columns, console=console, transient=False) as progress:
-        task = progress.add_task(f"{dataset} frames", total=sum(j.n_frames for j in todo))
+        task = progress.add_task(f"{run.dataset} frames", total=sum(j.n_frames for j in todo))
         advance = functools.partial(progress.advance, task)
-        results = run_jobs(todo, out, options, frame_stride, on_error, workers, executor, address, advance)
+        results = run_jobs(todo, out, run.options, run.frame_stride, run.on_error, run.workers, run.executor,
+                           run.address, advance)  # fmt: skip
     elapsed = time.perf_counter() - start
     append_errors(out, [e for r in results for e in r.errors])
-    leakage = read_and_measure(out, half_length(options))
+    leakage = read_and_measure(out, half_length(run.options))
     summary = summarize(plan, todo, results, elapsed, leakage)
-    write_manifest(out, dataset, root, version, parameters, split, options, summary)
+    write_manifest(out, run.dataset, run.root, run.version, parameters, run.split, run.options, summary)
     cells = plan.geo.cells if plan.geo is not None else None
-    draw_dataset_splits(out, out / "splits.png", cells, splits.geo_cell if cells else None)
+    draw_dataset_splits(out, out / PICTURE, cells, splits.geo_cell if cells else None)
     return summary
-

@@ -3,6 +3,7 @@ frame ids, nuScenes sample tokens, AV2 `<log>_<timestamp_ns>`), or the geographi
 
 from __future__ import annotations
 
+import hashlib
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,13 +40,27 @@ class SplitLine:
         return SAMPLE_TOKEN.fullmatch(self.text) is not None
 
 
+def check_split_file(split: str, path: Path) -> None:
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"{path}: split file of split {split!r} not found")
+
+
+def split_file_digests(split_files: dict[str, Path]) -> dict[str, str]:
+    """{split: sha256 of its file's bytes}: what the manifest records, so that a file edited under the same
+    path is told from the one a folder was prepared with."""
+    digests = {}
+    for split, path in split_files.items():
+        check_split_file(split, path)
+        digests[split] = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    return digests
+
+
 def read_split_files(split_files: dict[str, Path]) -> list[SplitLine]:
     """The named lines of one file per split (blank lines and # comments left out), e.g. the geographically
     disjoint splits of StreamMapNet. A line in two files is an error."""
     lines, seen = [], {}
     for split, path in split_files.items():
-        if not Path(path).is_file():
-            raise FileNotFoundError(f"{path}: split file of split {split!r} not found")
+        check_split_file(split, path)
         for number, line in enumerate(Path(path).read_text().splitlines(), 1):
             text = line.strip()
             if not text or text.startswith("#"):

@@ -11,7 +11,9 @@ epoch's sampler stands, so that `resume=True` continues exactly where the run st
 too), checkpoint.prev.pt (the one before) and best.pt (by train.best_metric). Only rank 0 writes.
 
 A step whose loss or gradient norm is not finite is not applied (no optimiser or scheduler step); it is
-counted and logged, and train.max_bad_steps of them in a row stop the run (TrainingStopped).
+counted and logged, and train.max_bad_steps of them in a row stop the run (TrainingStopped). Under fp16 an
+overflow (a finite loss, gradients beyond fp16's range) is the GradScaler's to handle while it backs off;
+at a loss scale of 1 or less it counts as such a step.
 """
 
 from __future__ import annotations
@@ -154,6 +156,7 @@ class Step:
     grad_norm: torch.Tensor
     applied: bool
     overflow: bool  # fp16 only: the GradScaler's overflow (a finite loss, gradients beyond fp16), skipped
+    loss_scale: float = 0.0  # an overflow's: the GradScaler's scale that the gradients overflowed at
 
 
 @dataclass
@@ -170,7 +173,7 @@ class Trainer:
     device: torch.device
     grad_clip: float
     step: int = 0  # batches stepped through, applied or skipped: the position in the schedule
-    bad_in_a_row: int = 0
+    bad_in_a_row: int = 0  # non-finite steps in a row, fp16 overflows at a loss scale of 1 or less among them
     skipped: int = 0  # non-finite steps, in all
 
     def train_step(self, batches: list[Batch]) -> Step:
@@ -202,6 +205,9 @@ class Trainer:
             dist.all_reduce(finite, op=dist.ReduceOp.MIN)  # every process skips the same steps
         loss_finite, grad_finite = (bool(flag) for flag in finite.tolist())
         applied = loss_finite and grad_finite
+        overflow = self.scaler.is_enabled() and loss_finite and not grad_finite
+        # read before update() backs it off, and on overflows only (reading it waits for the device)
+        loss_scale = self.scaler.get_scale() if overflow else 0.0
         if applied:
             self.scaler.step(self.optimizer)
             self.scheduler.step()
@@ -209,13 +215,15 @@ class Trainer:
             torch._foreach_copy_(statistics, kept)
         self.scaler.update()  # fp16: a skipped step lowers the loss scale
         self.step += 1
-        overflow = self.scaler.is_enabled() and loss_finite and not grad_finite
-        if applied or overflow:  # an fp16 overflow is the scaler's to handle, not a fault of the run
+        # An overflow is the scaler's to handle while halving the scale can bring the gradients into fp16's
+        # range; at a scale of 1 or less they overflow unscaled, and a scaler that keeps backing off would
+        # skip every step of the run: such an overflow is a bad step like a NaN loss.
+        if applied:
             self.bad_in_a_row = 0
-        else:
+        elif not overflow or loss_scale <= 1:
             self.bad_in_a_row += 1
         self.skipped += not applied
-        return Step(mean, grad_norm.detach(), applied, overflow)
+        return Step(mean, grad_norm.detach(), applied, overflow, loss_scale)
 
     def state(self, epoch: int, epoch_steps: int, config: Config, rng_states: list[dict], best: dict) -> dict:
         """The full state: `epoch` epochs done and `epoch_steps` steps into the next one."""
@@ -443,19 +451,25 @@ def not_finite(record: dict) -> str:
 
 
 def stop_if_diverged(s: Setup, run: RunFolder, step: Step) -> None:
-    """train.max_bad_steps non-finite steps in a row end the run with one line."""
+    """train.max_bad_steps non-finite steps in a row (fp16 overflows at a loss scale of 1 or less among
+    them) end the run with one line: the step, what was not finite, and how to go on."""
     trainer, limit = s.trainer, s.config.train.max_bad_steps
     if not limit or trainer.bad_in_a_row < limit:
         return
     values = {name: float(value) for name, value in mean_losses(step.losses, s.distributed).items()}
     values["grad_norm"] = float(step.grad_norm)
+    where = not_finite(values)
+    change = "another --set train.lr=..."
+    if step.overflow:
+        where += (f" (fp16 gradients overflowing at a loss scale of {step.loss_scale:g}: overflows count "
+                  "once the scale is down to 1)")  # fmt: skip
+        change = "--set train.amp=false (fp32) or " + change
     last = run.last_checkpoint
-    resume = (f"the last good checkpoint is {last[0]} (step {last[1]}): --resume from it with another "
-              "--set train.lr=..." if last else "no checkpoint was written yet")  # fmt: skip
+    go_on = (f"the last good checkpoint is {last[0]} (step {last[1]}): --resume from it with {change}" if last
+             else f"no checkpoint was written yet: start again (--overwrite) with {change}")  # fmt: skip
     raise TrainingStopped(
         f"step {trainer.step}: {trainer.bad_in_a_row} steps in a row with a non-finite loss or gradient norm "
-        f"(--max-bad-steps {limit}; not finite at this step: {not_finite(values)}), none of them applied; "
-        f"{resume}"
+        f"(--max-bad-steps {limit}; not finite at this step: {where}), none of them applied; {go_on}"
     )
 
 

@@ -329,6 +329,68 @@ def test_bad_training_inputs_are_named_in_one_line(toy_run, tmp_path):
     assert out.read_text() == "{}"
 
 
+class InfiniteGradient(torch.autograd.Function):
+    """The loss as it is, its gradient infinite: what fp16 gradients beyond its range do to the scaler."""
+
+    @staticmethod
+    def forward(ctx, loss):
+        return loss.clone()
+
+    @staticmethod
+    def backward(ctx, grad):
+        return grad * float("inf")
+
+
+class OverflowingFrom(torch.nn.Module):
+    """The model's loss, whose gradients overflow from its `first` call on."""
+
+    def __init__(self, loss: torch.nn.Module, first: int):
+        super().__init__()
+        self.loss, self.first, self.count = loss, first, 0
+
+    def forward(self, outputs, targets):
+        losses = self.loss(outputs, targets)
+        self.count += 1
+        if self.count >= self.first:
+            losses = {**losses, "loss": InfiniteGradient.apply(losses["loss"])}
+        return losses
+
+
+def test_fp16_overflows_that_never_end_stop_the_run_in_one_line(tmp_path, monkeypatch):
+    """fp16 on the CPU: the GradScaler itself (scale 4, halved at each overflow), gradients infinite from
+    step 3 on while the loss stays finite. The scaler backs off at scales 4 and 2; at 1 and below the
+    overflows count toward --max-bad-steps 3, so step 7 ends the run (before, it skipped every step to the
+    end and finished)."""
+    from test_baselines_train import toy_config
+
+    from baselines import train as train_module
+    from baselines.models import build
+    from baselines.train import TrainingStopped, train
+
+    def overflowing(config):
+        built = build(config)
+        built.loss = OverflowingFrom(built.loss, first=3)
+        return built
+
+    scaler = torch.amp.GradScaler
+    monkeypatch.setattr(train_module, "build", overflowing)
+    monkeypatch.setattr(train_module, "amp_settings", lambda device, enabled: (None, True))
+    monkeypatch.setattr(torch.amp, "GradScaler", lambda device, enabled: scaler("cpu", init_scale=4.0))
+    data = write_toy_dataset(tmp_path, frames=12)
+    config = toy_config("lidar", epochs=3)
+    config.train.checkpoint_every, config.train.max_bad_steps = 2, 3
+    with pytest.raises(TrainingStopped) as stopped:
+        train(config, data, tmp_path / "run")
+    message = str(stopped.value)
+    assert message.startswith("step 7: 3 steps in a row with a non-finite loss or gradient norm")
+    assert "not finite at this step: grad_norm (fp16 gradients overflowing at a loss scale of 0.25" in message
+    assert f"the last good checkpoint is {tmp_path / 'run' / 'checkpoint.pt'} (step 6)" in message
+    assert "--resume from it with --set train.amp=false (fp32)" in message and "\n" not in message
+    skipped = [r for r in map(json.loads, logged_lines(tmp_path / "run" / "log.jsonl")) if "skipped" in r]
+    assert [(r["step"], r["skipped"]) for r in skipped] == [(n, "fp16 overflow") for n in range(3, 8)]
+    assert all(np.isfinite(r["loss"]) and not np.isfinite(r["grad_norm"]) for r in skipped)
+
+
 # ---------------------------------------------------------------------------------------------- metric
 
 

@@ -24,6 +24,10 @@ that a timeout keeps what finished: after each model, runs.tar.gz (every finishe
 run.json, one file: the output folder is kept to 8 files) and summary.json so far; report.md and the final
 summary.json at the end.
 
+A model whose training or evaluation fails does not stop the others: summary.json records each failure
+(the command, its exit status and the last lines of its output), the report covers the models that
+finished, and the check exits non-zero at the end.
+
 `--smoke` (`make gpu-smoke`, in CI): the same commands and code path on tiny data, one epoch per model at
 batch 2, on whatever device there is; it fails unless every output exists and every score is finite.
 
@@ -42,6 +46,9 @@ import subprocess
 import sys
 import tarfile
 import time
+import traceback
+from collections import deque
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from rich.console import Console
@@ -93,18 +100,72 @@ SMOKE_DATA = {
     "val-frame-period": 1.0,
 }
 RUN_FILES = ("metrics.json", "run.json")  # a run's files in runs.tar.gz
+LAST_LINES = 20  # of a failed command's output, kept in summary.json: its error and what led to it
 
 console = Console()
 PHASES: list[tuple[str, float]] = []  # (command, seconds) of every `cli` command run so far
 
 
+@dataclass
+class Failure:
+    """What did not finish: the model (or "report"), the command that failed, its exit status (None when it
+    was no command: the run's files were unreadable) and the last lines of its output or traceback."""
+
+    stage: str
+    command: str
+    exit_status: int | None
+    last_lines: list[str]
+
+    def what(self) -> str:
+        """What failed, in words."""
+        return self.command if self.exit_status is None else f"cli {self.command} (exit {self.exit_status})"
+
+
+class CommandFailed(Exception):
+    """A `cli` command that exited non-zero, with the last lines of its output."""
+
+    def __init__(self, command: str, exit_status: int, last_lines: list[str]):
+        super().__init__(f"cli {command} failed (exit {exit_status})")
+        self.command, self.exit_status, self.last_lines = command, exit_status, last_lines
+
+
 def cli(*args: str) -> None:
-    """One `cli` command in its own process, as a user runs it; its failure ends the check."""
+    """One `cli` command in its own process, as a user runs it; its output is shown as it comes and its last
+    lines kept, for the CommandFailed it raises when it fails."""
     command = [sys.executable, "-m", "cli", *args]
     console.print(f"[bold]$ cli {' '.join(args)}[/bold]")
     start = time.perf_counter()
-    subprocess.run(command, check=True, cwd=Path(__file__).resolve().parent.parent)
+    last: deque[str] = deque(maxlen=LAST_LINES)
+    root = Path(__file__).resolve().parent.parent
+    pipe = {"stdout": subprocess.PIPE, "stderr": subprocess.STDOUT, "text": True, "errors": "replace"}
+    with subprocess.Popen(command, cwd=root, **pipe) as process:
+        for line in process.stdout:
+            sys.stdout.write(line)
+            sys.stdout.flush()
+            last.append(line.rstrip("\n").rsplit("\r", 1)[-1])  # a progress bar's last state
     PHASES.append((" ".join(args[:3]), time.perf_counter() - start))
+    if process.returncode:
+        raise CommandFailed(" ".join(args), process.returncode, list(last))
+
+
+def check_model(model: str, run: Path, prepared: Path, epochs: int, smoke: bool, bench: dict) -> dict:
+    """Train and evaluate one model: its row of figures (contract_row)."""
+    # the gpu preset's batch of 8 takes ~21 GB on the CPU, near CI's 24: the smoke trains batches of 2
+    batch = ["--batch-size", "2"] if smoke else []
+    # validation after the last epoch only: the epochs are sized by step times alone, and a pass over
+    # the 100 validation frames every few epochs would spend the budget on what cli eval measures after
+    cli("train", "--model", model, "--preset", "gpu", "--data", str(prepared), "--out", str(run),
+        "--epochs", str(epochs), "--eval-every", "0", *batch)  # fmt: skip
+    cli("eval", "--run", str(run), "--data", str(prepared), "--split", "val")
+    return contract_row(model, run, bench)
+
+
+def failure_of(stage: str, error: Exception) -> Failure:
+    """The Failure of a stage that raised `error`."""
+    if isinstance(error, CommandFailed):
+        return Failure(stage, error.command, error.exit_status, error.last_lines)
+    lines = "".join(traceback.format_exception(error)).splitlines()
+    return Failure(stage, "reading its metrics.json and run.json", None, lines[-LAST_LINES:])
 
 
 def started_at() -> tuple[float, str]:
@@ -177,9 +238,9 @@ def contract_row(model: str, run: Path, bench: dict[str, dict]) -> dict:
     }
 
 
-def bars(rows: list[dict], seconds: float) -> list[tuple[str, bool]]:
-    """(what, passed) for every bar of the check."""
-    checks = []
+def bars(rows: list[dict], seconds: float, failures: list[Failure]) -> list[tuple[str, bool]]:
+    """(what, passed) for every bar of the check: a model that failed fails its own."""
+    checks = [(f"{failure.stage} finishes ({failure.what()} failed)", False) for failure in failures]
     for row in rows:
         checks.append(
             (f"{row['model']} reads its sensors by >= {SENSOR_GAP}", row["sensor_gap"] >= SENSOR_GAP)
@@ -188,20 +249,21 @@ def bars(rows: list[dict], seconds: float) -> list[tuple[str, bool]]:
             f"{row['model']} beats the best constant by >= {CONSTANT_MARGIN}",
             row["over_best_constant"] >= CONSTANT_MARGIN,
         ))  # fmt: skip
-    lanegap = next(row for row in rows if row["model"] == "lanegap")
-    checks.append((f"LaneGAP directed TOPO F1 >= {LANEGAP_TOPO}", lanegap["topo"] >= LANEGAP_TOPO))
+    for lanegap in (row for row in rows if row["model"] == "lanegap"):
+        checks.append((f"LaneGAP directed TOPO F1 >= {LANEGAP_TOPO}", lanegap["topo"] >= LANEGAP_TOPO))
     checks.append((f"wall time <= {WALL_SECONDS} s", seconds <= WALL_SECONDS))
     return checks
 
 
 def smoke_failures(out: Path, rows: list[dict]) -> list[str]:
-    """What is missing or not finite after a smoke run."""
+    """What is missing or not finite after a smoke run, of the models that finished (the others' failures
+    are said on their own)."""
     failures = []
-    for model in MODELS:
+    for model in (row["model"] for row in rows):
         for name in ("checkpoint.pt", "predictions.parquet", "metrics.json", "run.json"):
             if not (out / "runs" / model / name).is_file():
                 failures.append(f"missing {out / 'runs' / model / name}")
-    if not (out / "report" / "report.md").is_file():
+    if rows and not (out / "report" / "report.md").is_file():
         failures.append(f"missing {out / 'report' / 'report.md'}")
     for row in rows:
         for key in ("topo", "junction_topo", "sensor_gap", "over_best_constant", "samples_per_s"):
@@ -215,7 +277,7 @@ def export_runs(runs: Path, results: Path) -> Path:
     runs/MODEL/NAME. Written beside and renamed into place, so that a kill mid-write leaves the last one."""
     archive, partial = results / "runs.tar.gz", results / "runs.tar.gz.partial"
     with tarfile.open(partial, "w:gz") as tar:
-        for run in sorted(path for path in runs.iterdir() if path.is_dir()):
+        for run in sorted(path for path in (runs.iterdir() if runs.is_dir() else ()) if path.is_dir()):
             if all((run / name).is_file() for name in RUN_FILES):
                 for name in RUN_FILES:
                     tar.add(run / name, arcname=f"runs/{run.name}/{name}")
@@ -274,9 +336,13 @@ def main() -> int:
     bench = {row["model"]: row for row in json.loads(args.bench.read_text())} if args.bench else {}
     data = SMOKE_DATA if args.smoke else DATA
     workers = f"--workers={args.workers}"
-    cli("synth", "--out", str(out / "raw"), *(f"--{key}={value}" for key, value in data.items()), workers)
     prepared, sensor = out / "prepared", out / "raw" / "av2" / "sensor"
-    cli("prepare", "--dataset", "av2", "--root", str(sensor), "--out", str(prepared), workers)
+    try:  # no model can run without the data
+        cli("synth", "--out", str(out / "raw"), *(f"--{key}={value}" for key, value in data.items()), workers)
+        cli("prepare", "--dataset", "av2", "--root", str(sensor), "--out", str(prepared), workers)
+    except CommandFailed as error:
+        console.print(f"[red]{error}: no model can run without its data[/red]")
+        return 1
     epochs, why = schedule(args.epochs, args.smoke, args.bench, prepared, args.train_seconds)
     console.print(f"every model trains {epochs} epoch{'s' if epochs != 1 else ''}: {why}")
 
@@ -284,37 +350,47 @@ def main() -> int:
         return {"complete": complete, "seconds": seconds, "since": since,
                 "gpu_check_seconds": time.time() - own_start, "epochs": epochs, "schedule": why,
                 "proves": PROVES, "settings": SETTINGS, "rows": rows, "phases": PHASES,
+                "failures": [asdict(failure) for failure in failures],
                 "checks": [{"what": what, "passed": passed} for what, passed in checks]}  # fmt: skip
 
     finished: list[dict] = []
+    failures: list[Failure] = []
     for model in MODELS:
-        run = out / "runs" / model
-        # the gpu preset's batch of 8 takes ~21 GB on the CPU, near CI's 24: the smoke trains batches of 2
-        smoke = ["--batch-size", "2"] if args.smoke else []
-        # validation after the last epoch only: the epochs are sized by step times alone, and a pass over
-        # the 100 validation frames every few epochs would spend the budget on what cli eval measures after
-        cli("train", "--model", model, "--preset", "gpu", "--data", str(prepared), "--out", str(run),
-            "--epochs", str(epochs), "--eval-every", "0", *smoke)  # fmt: skip
-        cli("eval", "--run", str(run), "--data", str(prepared), "--split", "val")
-        finished.append(contract_row(model, run, bench))
+        try:
+            finished.append(check_model(model, out / "runs" / model, prepared, epochs, args.smoke, bench))
+        except (CommandFailed, OSError, KeyError, TypeError, ValueError) as error:
+            failures.append(failure_of(model, error))
+            console.print(f"[red]{model} failed: {error}; the other models go on[/red]")
         if results is not None:
             export_runs(out / "runs", results)
             write_json(results / "summary.json", summary(finished, [], time.time() - started, complete=False))
-    cli("report", "--runs", str(out / "runs"), "--out", str(out / "report"))
+    rows = finished
+    if rows:  # the report of the models that finished
+        runs = [f"--runs={out / 'runs' / row['model']}" for row in sorted(rows, key=lambda row: row["model"])]
+        try:
+            cli("report", *runs, "--out", str(out / "report"))
+        except CommandFailed as error:
+            failures.append(failure_of("report", error))
+            console.print(f"[red]{error}[/red]")
     seconds = time.time() - started
 
-    rows = finished
-    console.print(table_of(rows, f"gpu preset on synthetic data, {rows[0]['device']}, {epochs} epochs each: "
-                                 f"{seconds:.0f} s since {since}"))  # fmt: skip
-    best = max(row["junction_topo"] for row in rows)
-    leaders = [row["model"] for row in rows if row["junction_topo"] == best]
-    console.print(f"Junction TOPO F1 is led by {' and '.join(leaders)} (the paper's claim: LaneGAP; the "
-                  "report's summary says whether a lead is beyond the bootstrap interval)")  # fmt: skip
+    if rows:
+        console.print(table_of(rows, f"gpu preset on synthetic data, {rows[0]['device']}, {epochs} epochs "
+                                     f"each: {seconds:.0f} s since {since}"))  # fmt: skip
+        best = max(row["junction_topo"] for row in rows)
+        leaders = [row["model"] for row in rows if row["junction_topo"] == best]
+        console.print(f"Junction TOPO F1 is led by {' and '.join(leaders)} (the paper's claim: LaneGAP; the "
+                      "report's summary says whether a lead is beyond the bootstrap interval)")  # fmt: skip
     console.print(PROVES)
-    console.print(f"{SETTINGS}; here: {rows[0]['precision']} on {rows[0]['device']}")
+    if rows:
+        console.print(f"{SETTINGS}; here: {rows[0]['precision']} on {rows[0]['device']}")
     for command, phase_seconds in PHASES:
         console.print(f"{phase_seconds:7.1f} s  cli {command}")
-    checks = [] if args.smoke else bars(rows, seconds)
+    for failure in failures:
+        console.print(f"[red]FAILED  {failure.stage}: {failure.what()}, its last lines:[/red]")
+        for line in failure.last_lines:
+            console.print(f"    {line}", markup=False, highlight=False)
+    checks = [] if args.smoke else bars(rows, seconds, failures)
     final = summary(rows, checks, seconds, complete=True)
     write_json(out / "summary.json", final)
     if results is not None:
@@ -324,11 +400,12 @@ def main() -> int:
     console.print(f"wrote {out / 'runs'}, {out / 'report' / 'report.md'} and {out / 'summary.json'}"
                   + (f"; copied into {results}" if results else ""))  # fmt: skip
     if args.smoke:
-        failures = smoke_failures(out, rows)
-        for failure in failures:
-            console.print(f"[red]smoke: {failure}[/red]")
-        console.print("smoke: every output exists, every score is finite" if not failures else "smoke FAILED")
-        return 1 if failures else 0
+        missing = smoke_failures(out, rows)
+        for what in missing:
+            console.print(f"[red]smoke: {what}[/red]")
+        passed = not missing and not failures
+        console.print("smoke: every output exists, every score is finite" if passed else "smoke FAILED")
+        return 0 if passed else 1
     for what, passed in checks:
         console.print(f"{'PASS' if passed else 'FAIL'}  {what}")
     return 0 if all(passed for _, passed in checks) else 1

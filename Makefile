@@ -82,12 +82,13 @@ test-learning: $(STAMP)
 wheel-smoke: $(STAMP)
 	PYTHON=$(PY) bash .ci/wheel_smoke.sh
 
-# make wheelhouse: the wheels for an offline GPU machine (default: its Python 3.12), binary ones only:
-# requirements.lock's pins of GPU_WHEELS, then the project's own wheel. GPU_WHEELS: the lock's packages that the GPU image
-# lacks (device KINDS.md's list of 2026-11-17) and that the code imports; the rest of GPU_IMAGE_LACKS is
+# make wheelhouse: the wheels for an offline GPU machine (WHEEL_PYTHON, default 3.12: set it to that machine's
+# Python), binary ones only: requirements.lock's pins of GPU_WHEELS, then the project's own wheel.
+# GPU_WHEELS (set it for your machine): the lock's packages that a CUDA PyTorch image (python3 with torch,
+# numpy, scipy, pyarrow, opencv, numba...) lacks and that the code imports; the rest of GPU_IMAGE_LACKS is
 # declared by av2, nuscenes-devkit or typer, or serves tests, ray or lint, and is never imported by the
-# commands: av, polars and opencv-python alone are 148 MiB of cp312 wheels (the lock less torch: 555 MiB),
-# beyond the 64 MiB that travel to the machine with the tree.
+# commands. Leaving those out keeps the wheelhouse at 18 MiB, quick to copy along with the tree: av, polars
+# and opencv-python alone are 148 MiB of cp312 wheels (the lock less torch: 555 MiB).
 WHEELHOUSE := wheelhouse
 WHEEL_PYTHON := 3.12
 WHEEL_PLATFORMS := manylinux_2_28_x86_64 manylinux_2_27_x86_64 manylinux_2_17_x86_64 manylinux2014_x86_64 \
@@ -102,15 +103,17 @@ DRYRUN := gpu_dryrun
 # GPU acceptance: the four models under the gpu preset on one CUDA GPU, within 10 minutes: that each
 # runs, learns and fits, with its step time, memory and samples/s (the paper's ranking needs the paper's
 # schedule). tools/gpu_setup.sh runs bench_step, then gpu_check with every model the same epochs, the
-# most that fit by its step times, all under a time limit (LIMIT, 540 s from the script's start), and
-# copies each result into $GPU_CHECK_OUT (gpu_check_out/) as its stage ends, so that a timeout keeps what finished.
+# most that fit by its step times, all under a time limit that you set, LIMIT (default 540 s from the
+# script's start: the 10 minutes less one, so that a hung or slow run stops by itself inside them; e.g.
+# make gpu-check LIMIT=900 on a slower GPU), and copies each result into the folder you choose,
+# GPU_CHECK_OUT (default gpu_check_out/), as its stage ends, so that a timeout keeps what finished.
 # Where wheelhouse/ holds our wheel (a GPU machine with no package index: `make wheelhouse` here, copy
 # wheelhouse/ there), nothing comes from an index: .venv-gpu is made over that machine's python3 and its
 # CUDA torch, from the wheelhouse alone. Else it runs in .venv, set up from the index as for every target.
 # gpu-smoke runs gpu_check on tiny data on any device; gpu-dryrun (CI, after the tests) downloads the GPU
 # machine's wheelhouse, then runs the offline path on this machine's CPUs: a wheelhouse for this Python,
-# .venv less the packages that the GPU image lacks as that image, then gpu_setup.sh --smoke (its limit
-# 3600 s; its results in gpu_dryrun/out as on the device).
+# .venv less the packages that such an image lacks as that image, then gpu_setup.sh --smoke (its limit
+# 3600 s; its results in gpu_dryrun/out, the same files a GPU run leaves in gpu_check_out/).
 ifneq ($(wildcard $(WHEELHOUSE)/lanegraph-*.whl),)
 gpu-check:
 	bash tools/gpu_setup.sh

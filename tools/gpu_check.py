@@ -21,8 +21,8 @@ step times, a short fixed schedule (FALLBACK_EPOCHS); `--epochs N` sets it.
 
 `--results DIR` (gpu_setup.sh: $GPU_CHECK_OUT): each result is copied there as its stage ends, so
 that a timeout keeps what finished: after each model, runs.tar.gz (every finished run's metrics.json and
-run.json, one file: the output folder is kept to 8 files) and summary.json so far; report.md and the final
-summary.json at the end.
+run.json, one file, so that the folder stays a handful of files, quick to copy off the machine and read)
+and summary.json so far; report.md and the final summary.json at the end.
 
 A model whose training or evaluation fails does not stop the others: summary.json records each failure
 (the command, its exit status and the last lines of its output), the report covers the models that
@@ -61,7 +61,8 @@ WALL_SECONDS = 600
 # Without measured step times nothing says that the preset's 16 epochs fit: 2 epochs (100 steps of batch 8,
 # ~23 TFLOP for one step of all four by BENCHMARKS.md's GFLOPs) fit 110 s from an effective 21 TFLOP/s on.
 FALLBACK_EPOCHS = 2
-# The default --train-seconds: the whole check (gpu_setup.sh, set-up included) must end inside 540 s.
+# The default --train-seconds: the whole check (gpu_setup.sh, set-up included) must end inside its default
+# time limit, LIMIT=540 s (the 10 minutes less one); with a longer LIMIT, give a longer --train-seconds.
 # Not yet measured on a GPU; estimated from the CPU dry run and BENCHMARKS.md (assumptions in brackets):
 #   set-up: venv, 9 wheels --no-deps, imports, cli --help       45 s  (the CPU dry run's 57 s with other jobs)
 #   bench_step: its data, 4 x (first epoch + 10 steps)           90 s  (gpu_setup.sh stops it at 120 s)
@@ -315,7 +316,8 @@ def main() -> int:
                         f"--train-seconds by --bench, else {FALLBACK_EPOCHS}; 1 with --smoke)")  # fmt: skip
     parser.add_argument("--bench", type=Path, help="bench_step.json of this GPU: size the epochs by it")
     parser.add_argument("--train-seconds", type=float, default=TRAIN_SECONDS, help="the four trainings' "
-                        "steps together, for the epochs sized by --bench")  # fmt: skip
+                        "steps together, for the epochs sized by --bench (the default fits gpu_setup.sh's "
+                        "default LIMIT of 540 s)")  # fmt: skip
     parser.add_argument("--results", type=Path, help="copy each result here as its stage ends")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="cli synth's and prepare's "
                         "processes (default: one per core)")  # fmt: skip

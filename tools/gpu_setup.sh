@@ -6,8 +6,10 @@
 #   there, copied along: make gpu-check    # runs this script, since wheelhouse/ exists (or: bash this file)
 #
 # 1. $VENV (.venv-gpu) by `$PYTHON -m venv --system-site-packages`, so that it sees the machine's torch,
-#    numpy, scipy, pyarrow, opencv... A venv made from a venv's python (the GPU image's python3 lives in
-#    /opt/torch/.venv) sees only the base interpreter's site, so a .pth file adds $PYTHON's site-packages.
+#    numpy, scipy, pyarrow, opencv... PYTHON is the interpreter that holds CUDA torch (default: python3 on
+#    the PATH; e.g. PYTHON=/path/to/venv/bin/python where an image keeps torch in a venv of its own). A
+#    venv made from a venv's python sees only the base interpreter's site, so a .pth file adds $PYTHON's
+#    site-packages.
 # 2. The wheelhouse, --no-index --no-deps: the machine's own torch and numpy stand in for the lock's
 #    torch==2.13.0 and nuscenes-devkit's numpy<2, which pip's resolver would refuse. Then every module the
 #    commands import, and the packages whose versions differ from requirements.lock (in the log).
@@ -16,22 +18,25 @@
 # 3. torch.cuda.is_available() (it must be, unless --smoke), then `python -m tools.bench_step --preset
 #    gpu` (at most BENCH_LIMIT s) and `python -m tools.gpu_check --bench bench_step/bench_step.json`
 #    (every model the same epochs, the most that fit; without the bench a short fixed schedule), under
-#    `timeout` so that the whole script ends within LIMIT s of its start.
-# 4. Each result into $GPU_CHECK_OUT (gpu_check_out/; keep it to 8 files or fewer) as its
-#    stage ends: gpu_setup.log (all output, as it comes), environment.txt, bench_step.json after the
-#    bench; runs.tar.gz (every finished run's metrics.json and run.json) and summary.json so far after each
-#    model (gpu_check --results); report.md and the final summary.json at the end. A timeout keeps what
-#    finished.
+#    `timeout` so that the whole script ends within LIMIT s of its start. A model that fails does not stop
+#    the others: summary.json records its failure with the last lines of its output, and the script exits
+#    non-zero at the end.
+# 4. Each result into the folder you choose, $GPU_CHECK_OUT (default gpu_check_out/: a handful of files,
+#    quick to copy off the machine and read), as its stage ends: gpu_setup.log (all output, as it comes),
+#    environment.txt, bench_step.json after the bench; runs.tar.gz (every finished run's metrics.json and
+#    run.json) and summary.json so far after each model (gpu_check --results); report.md and the final
+#    summary.json at the end. A timeout keeps what finished.
 #
 # Options: --smoke   `gpu_check --smoke` (tiny data, one epoch, any device), no bench_step
 #          --system  no venv and no wheelhouse: run with $PYTHON as it is (make gpu-check with .venv)
 # Environment: PYTHON (python3), WHEELHOUSE (wheelhouse), VENV (.venv-gpu), GPU_CHECK_OUT (gpu_check_out),
-#   LIMIT (seconds for the whole script: 540, the device call's budget; 3600 with --smoke, whose CPU run
-#   in CI took 527 s on a quiet machine, 1,277 s beside other jobs), BENCH_LIMIT (120), GPU_CHECK_ARGS
-#   (more gpu_check options, e.g. --train-seconds 100), and, for make gpu-dryrun alone, HIDE:
-#   distributions of $PYTHON's site-packages that $VENV must not see (the lock's packages that the GPU
-#   image lacks), so that a CPU machine stands in for that image. GPU_CHECK_STARTED (set here: epoch
-#   seconds at the script's start) times the whole for gpu_check.
+#   LIMIT (your time limit for the whole script, in seconds: 540 by default, the check's 10 minutes less
+#   one, so that a hung or slow run stops by itself, results saved, inside them; raise it on a slower GPU;
+#   3600 with --smoke, whose CPU run in CI took 527 s on a quiet machine, 1,277 s beside other jobs),
+#   BENCH_LIMIT (120), GPU_CHECK_ARGS (more gpu_check options, e.g. --train-seconds 100), and, for make
+#   gpu-dryrun alone, HIDE: distributions of $PYTHON's site-packages that $VENV must not see (the lock's
+#   packages that a CUDA PyTorch image lacks), so that a CPU machine stands in for such an image.
+#   GPU_CHECK_STARTED (set here: epoch seconds at the script's start) times the whole for gpu_check.
 set -euo pipefail
 script=$(cd "$(dirname "$0")" && pwd)/$(basename "$0")
 cd "$(dirname "$script")/.."

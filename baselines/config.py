@@ -5,6 +5,8 @@ together, `baselines.models.load_config` reads a saved one.
 
 Every field can be overridden from the command line with `--set section.field=value`
 (e.g. `--set train.lr=3e-4 --set encoder.kernel_size=3,3`); the resolved config is saved with the run.
+A numeric field's valid values stand beside it (`Annotated[int, AT_LEAST_1]`, a `Range`); a value outside
+them is an error naming the field, whichever way it came: a preset, an option, `--set` or a saved config.
 """
 
 from __future__ import annotations
@@ -12,10 +14,11 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
+import math
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import torch
@@ -32,38 +35,97 @@ BestMetric = Literal[
 ]
 
 
+@dataclass(frozen=True)
+class Range:
+    """The values a numeric config field may take (each element's, in a tuple field): low <= value <= high,
+    `<` at an open end; `increasing`: a tuple's elements strictly increase. The default high end, infinity,
+    is open: NaN and infinity are refused unless a range closes it (train.grad_clip)."""
+
+    low: float = -math.inf
+    high: float = math.inf
+    low_open: bool = False
+    high_open: bool = True
+    increasing: bool = False
+
+    def holds(self, value: float) -> bool:
+        above = self.low < value if self.low_open else self.low <= value
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below
+
+    def describe(self) -> str:
+        """E.g. `at least 1`, `greater than 0`, `in [0, 1)`."""
+        if self.high == math.inf and self.high_open:
+            if self.low == -math.inf:
+                return "finite"
+            return f"greater than {self.low}" if self.low_open else f"at least {self.low}"
+        return f"in {'(' if self.low_open else '['}{self.low}, {self.high}{')' if self.high_open else ']'}"
+
+    def problem(self, value: Any) -> str | None:
+        """What is wrong with `value` (`must be at least 0, not -1`), or None when it is in range."""
+        if isinstance(value, tuple):
+            if not all(self.holds(item) for item in value):
+                return f"must be {self.describe()} each, not {value}"
+            if self.increasing and any(a >= b for a, b in zip(value, value[1:])):
+                return f"must be increasing, not {value}"
+            return None
+        return None if self.holds(value) else f"must be {self.describe()}, not {value}"
+
+
+# The ranges most fields share.
+AT_LEAST_0 = Range(low=0)  # counts where 0 means none, off or automatic; loss weights (0: a term off)
+AT_LEAST_1 = Range(low=1)  # counts and sizes
+POSITIVE = Range(low=0, low_open=True)  # rates, scales, lengths
+FRACTION = Range(0, 1, high_open=True)  # [0, 1): dropout, a cropped share, Adam's betas
+PROBABILITY = Range(0, 1, high_open=False)  # [0, 1]: thresholds on scores, ratios
+INTERVAL = Range(increasing=True)  # (low, high) of finite numbers
+
+
+def range_problem(section: Any, name: str, value: Any) -> str | None:
+    """What is wrong with `value` for the field `name` of the config dataclass `section` (its `Range`),
+    or None (also for a field without one)."""
+    hint = typing.get_type_hints(type(section), include_extras=True)[name]
+    ranges = [item for item in getattr(hint, "__metadata__", ()) if isinstance(item, Range)]
+    return next((problem for bounds in ranges if (problem := bounds.problem(value))), None)
+
+
 @dataclass
 class EncoderConfig:
     """The shared BEV encoder: cameras (ResNet + FPN-like neck + GKT) and/or LiDAR pillars."""
 
     modality: Modality = "camera"
-    x_range: tuple[float, float] = (-15.0, 15.0)  # metres, BEV columns (x right)
-    y_range: tuple[float, float] = (-30.0, 30.0)  # metres, BEV rows (y forward; row 0 = front)
-    bev_h: int = 200  # rows: 60 m / 0.3 m
-    bev_w: int = 100  # columns: 30 m / 0.3 m
-    channels: int = 256
-    dropout: float = 0.1
+    x_range: Annotated[tuple[float, float], INTERVAL] = (-15.0, 15.0)  # metres, BEV columns (x right)
+    # metres, BEV rows (y forward; row 0 = front)
+    y_range: Annotated[tuple[float, float], INTERVAL] = (-30.0, 30.0)
+    bev_h: Annotated[int, AT_LEAST_1] = 200  # rows: 60 m / 0.3 m
+    bev_w: Annotated[int, AT_LEAST_1] = 100  # columns: 30 m / 0.3 m
+    channels: Annotated[int, AT_LEAST_1] = 256
+    dropout: Annotated[float, FRACTION] = 0.1
     # Camera branch.
     backbone: BackboneName = "resnet50"
-    backbone_width: int = 64  # 64 is torchvision's; pretrained weights need 64
+    backbone_width: Annotated[int, AT_LEAST_1] = 64  # 64 is torchvision's; pretrained weights need 64
     backbone_weights: str = ""  # local torchvision state_dict file; never downloaded
-    backbone_frozen_stages: int = 1  # as mmdet's: -1 none, 0 the stem, 1 the stem and layer1 (MapTR's)
+    # as mmdet's: -1 none, 0 the stem, 1 the stem and layer1 (MapTR's)
+    backbone_frozen_stages: Annotated[int, Range(-1, 4, high_open=False)] = 1
     backbone_norm_eval: bool = True  # keep pretrained BatchNorm statistics
-    feature_stride: int = 32  # the neck's output stride: 8, 16 or 32
+    # the neck's output stride: 4, 8, 16 or 32 (the neck names them; the range catches the rest early)
+    feature_stride: Annotated[int, Range(4, 32, high_open=False)] = 32
     # Heights above the ground of the 3D points of a BEV pillar: each frame's ground plane moves them into
     # its BEV frame, z = ground_z + a x + b y + height (frames.ground_z: about -1.84 in nuScenes' LIDAR_TOP
     # frame, -0.33 under AV2's rear axle; frames.ground_slope (a, b): about (0.006, 0.024) in nuScenes', whose
     # LIDAR_TOP is pitched on the ego, (0, 0) in AV2's).
     camera_heights: tuple[float, ...] = (-1.5, -0.5, 0.5, 1.5)
-    kernel_size: tuple[int, int] = (3, 5)  # GKT kernel (rows, columns) around each projection
-    camera_heads: int = 4
-    camera_layers: int = 1
-    max_views: int = 2  # cameras a BEV point reads at most (overlaps are seen by two)
+    # GKT kernel (rows, columns) around each projection
+    kernel_size: Annotated[tuple[int, int], AT_LEAST_1] = (3, 5)
+    camera_heads: Annotated[int, AT_LEAST_1] = 4
+    camera_layers: Annotated[int, AT_LEAST_1] = 1
+    max_views: Annotated[int, AT_LEAST_1] = 2  # cameras a BEV point reads at most (overlaps are seen by two)
     # LiDAR branch.
-    pillar_channels: int = 64
-    pillar_subdivision: int = 2  # pillars per BEV cell side (2: 0.15 m pillars on the 0.3 m grid)
-    z_range: tuple[float, float] = (-5.0, 3.0)  # metres above the ground; points outside are dropped
-    lidar_blocks: int = 2
+    pillar_channels: Annotated[int, AT_LEAST_1] = 64
+    # pillars per BEV cell side (2: 0.15 m pillars on the 0.3 m grid)
+    pillar_subdivision: Annotated[int, AT_LEAST_1] = 2
+    # metres above the ground; points outside are dropped
+    z_range: Annotated[tuple[float, float], INTERVAL] = (-5.0, 3.0)
+    lidar_blocks: Annotated[int, AT_LEAST_0] = 2
 
     def metres_to_unit(self, xy: Any) -> Any:
         """BEV metres (..., 2) -> unit coordinates (u right, v down the rows; (0, 0) = front-left corner)."""
@@ -95,21 +157,22 @@ class DataConfig:
     data of `cli synth` (its images are already 1/4 and 1/8 of the real sizes, its cameras look level);
     the loader picks by the dataset's sensor root (pipeline/manifest.py `is_synthetic`)."""
 
-    image_scale_nuscenes: float = 0.5  # image resize ratio of the paper, on real data
-    image_scale_av2: float = 0.3
+    image_scale_nuscenes: Annotated[float, POSITIVE] = 0.5  # image resize ratio of the paper, on real data
+    image_scale_av2: Annotated[float, POSITIVE] = 0.3
     # fraction of each image's height cut off its top after the resize (real data: none, as the paper)
-    image_crop_top: float = 0.0
+    image_crop_top: Annotated[float, FRACTION] = 0.0
     # the synthetic images: nuScenes 400 x 225 and AV2 256 x 194 as written; smaller AV2 images lose lanes
     # (docs/EXPERIMENTS.md, 2026-12-02), and the top 40 % is sky above the level cameras' horizon, where no
     # point of the BEV grid projects (tests/test_camera_geometry.py): cropping it costs nothing
-    synthetic_image_scale_nuscenes: float = 0.5
-    synthetic_image_scale_av2: float = 1.0
-    synthetic_image_crop_top: float = 0.4
-    image_divisor: int = 32  # images are padded to a multiple of this (bottom / right)
-    max_points: int = 120_000  # LiDAR points kept per sweep (random subset beyond)
+    synthetic_image_scale_nuscenes: Annotated[float, POSITIVE] = 0.5
+    synthetic_image_scale_av2: Annotated[float, POSITIVE] = 1.0
+    synthetic_image_crop_top: Annotated[float, FRACTION] = 0.4
+    image_divisor: Annotated[int, AT_LEAST_1] = 32  # images are padded to a multiple of this (bottom / right)
+    max_points: Annotated[int, AT_LEAST_1] = 120_000  # LiDAR points kept per sweep (random subset beyond)
     sensor_root: str = ""  # raw dataset root; default: the `root` in the prepared manifest.json
     cache_samples: bool = False  # keep decoded samples in memory (small datasets, many epochs)
-    num_workers: int = 4  # loader processes (persistent over epochs), at most one per core
+    # loader processes (persistent over epochs), at most one per core
+    num_workers: Annotated[int, AT_LEAST_0] = 4
 
     def image_settings(self, dataset: str, synthetic: bool) -> tuple[float, float]:
         """(resize ratio, fraction of the height cut off the top) of `dataset`'s images."""
@@ -126,35 +189,42 @@ PAPER_EPOCHS = {"nuscenes": 110, "av2": 24}
 
 @dataclass
 class TrainConfig:
-    epochs: int = 0  # 0: the prepared dataset's schedule (PAPER_EPOCHS); run.json says which
-    batch_size: int = 32  # the effective batch: over all processes and accumulated micro-batches
+    # 0: the prepared dataset's schedule (PAPER_EPOCHS); run.json says which
+    epochs: Annotated[int, AT_LEAST_0] = 0
+    # the effective batch: over all processes and accumulated micro-batches
+    batch_size: Annotated[int, AT_LEAST_1] = 32
     # frames one process holds in one forward pass (0: no cap). A batch above it per process is split
     # into `accumulate` micro-batches whose gradients add up before one optimiser step, so that one GPU
     # runs the paper's 32 as 8 processes of 4 do.
-    max_batch_per_device: int = 0
-    accumulate: int = 0  # micro-batches per optimiser step; 0: the fewest under max_batch_per_device
-    lr: float = 6e-4
-    backbone_lr_mult: float = 0.1
-    betas: tuple[float, float] = (0.9, 0.999)
-    eps: float = 1e-8
-    weight_decay: float = 0.01
-    warmup_iters: int = 500
-    warmup_ratio: float = 1.0 / 3  # warm-up starts at lr * warmup_ratio
-    min_lr_ratio: float = 1e-3  # cosine decays to lr * min_lr_ratio
-    grad_clip: float = 35.0
+    max_batch_per_device: Annotated[int, AT_LEAST_0] = 0
+    # micro-batches per optimiser step; 0: the fewest under max_batch_per_device
+    accumulate: Annotated[int, AT_LEAST_0] = 0
+    lr: Annotated[float, POSITIVE] = 6e-4
+    backbone_lr_mult: Annotated[float, AT_LEAST_0] = 0.1  # 0: the backbone stays as it starts
+    betas: Annotated[tuple[float, float], FRACTION] = (0.9, 0.999)
+    eps: Annotated[float, POSITIVE] = 1e-8
+    weight_decay: Annotated[float, AT_LEAST_0] = 0.01
+    warmup_iters: Annotated[int, AT_LEAST_0] = 500
+    warmup_ratio: Annotated[float, PROBABILITY] = 1.0 / 3  # warm-up starts at lr * warmup_ratio
+    min_lr_ratio: Annotated[float, PROBABILITY] = 1e-3  # cosine decays to lr * min_lr_ratio
+    grad_clip: Annotated[float, Range(low=0, low_open=True, high_open=False)] = 35.0  # inf: no clipping
     amp: bool = True  # mixed precision on CUDA
-    seed: int = 0
-    log_every: int = 10
-    threads: int = 0  # torch CPU threads; 0 keeps torch's default
+    # numpy's seeds are 32-bit and non-negative; each process adds its rank
+    seed: Annotated[int, Range(0, 2**31 - 1, high_open=False)] = 0
+    log_every: Annotated[int, AT_LEAST_1] = 10
+    threads: Annotated[int, AT_LEAST_0] = 0  # torch CPU threads; 0 keeps torch's default
     train_split: str = "train"
     val_split: str = "val"
     # Validation during training (val.jsonl, best.pt): every eval_every epochs and after the last one (0:
     # after the last one only), on eval_frames frames of val_split drawn once by the seed (0: all of them).
-    eval_every: int = 1
-    eval_frames: int = 0
+    eval_every: Annotated[int, AT_LEAST_0] = 1
+    eval_frames: Annotated[int, AT_LEAST_0] = 0
     best_metric: BestMetric = "directed_junction_topo_f1"  # the paper's headline
-    checkpoint_every: int = 0  # optimiser steps between checkpoints inside an epoch (0: at epoch ends only)
-    max_bad_steps: int = 10  # non-finite steps in a row that stop the run (0: never stop)
+    # optimiser steps between checkpoints inside an epoch (0: at epoch ends only)
+    checkpoint_every: Annotated[int, AT_LEAST_0] = 0
+    # non-finite steps in a row that stop the run (0: never stop); fp16 overflows count once the loss scale
+    # is down to 1 (baselines/train.py)
+    max_bad_steps: Annotated[int, AT_LEAST_0] = 10
 
     def micro_batches(self, world_size: int) -> tuple[int, int]:
         """(frames per forward pass, micro-batches per optimiser step) of each of `world_size` processes;
@@ -183,6 +253,22 @@ class Config:
     data: DataConfig = field(default_factory=DataConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
+    def __post_init__(self) -> None:
+        self.check_ranges()  # the presets and the model heads, as written in the code
+
+    def check_ranges(self, where: str = "") -> None:
+        """Every section's fields against their `Range`: the first one outside is a ValueError naming it
+        (`where: train.max_bad_steps must be at least 0, not -1`)."""
+        for section_field in dataclasses.fields(self):
+            section = getattr(self, section_field.name)
+            if not dataclasses.is_dataclass(section):
+                continue
+            for item in dataclasses.fields(section):
+                problem = range_problem(section, item.name, getattr(section, item.name))
+                if problem:
+                    name = f"{section_field.name}.{item.name}"
+                    raise ValueError(f"{where}: {name} {problem}" if where else f"{name} {problem}")
+
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
@@ -190,9 +276,10 @@ class Config:
         path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
 
     @staticmethod
-    def from_dict(values: dict[str, Any], decoder: Any) -> Config:
-        """`values` (a saved config) over the paper preset's sections and `decoder`, the head config of
-        the model that `values` names (baselines.models.load_config)."""
+    def from_dict(values: dict[str, Any], decoder: Any, source: str = "the saved config") -> Config:
+        """`values` (a saved config, read from `source`) over the paper preset's sections and `decoder`, the
+        head config of the model that `values` names (baselines.models.load_config); a value out of its
+        field's range is an error naming `source` and the field."""
         config = Config(decoder=decoder)
         for key, value in values.items():
             if isinstance(value, dict):
@@ -201,6 +288,7 @@ class Config:
                     setattr(section, name, _coerce(getattr(section, name), item, f"{key}.{name}"))
             else:
                 setattr(config, key, value)
+        config.check_ranges(source)
         return config
 
 
@@ -337,6 +425,9 @@ def set_field(config: Config, item: str, where: str) -> None:
         value = _parse(types[field_name], text.strip())
     except ValueError as expected:
         raise ValueError(f"{where}: {section_name}.{field_name} expects {expected}") from None
+    problem = range_problem(section, field_name, value)
+    if problem:
+        raise ValueError(f"{where}: {section_name}.{field_name} {problem}")
     setattr(section, field_name, value)
 
 

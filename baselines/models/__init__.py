@@ -67,7 +67,7 @@ def load_config(path: Path) -> Config:
     paper preset's."""
     values = json.loads(Path(path).read_text())
     model = values.get("model", "lanegap")  # files from before the other models
-    return Config.from_dict({**values, "model": model}, head(model, "paper"))
+    return Config.from_dict({**values, "model": model}, head(model, "paper"), str(path))
 
 
 def resolve_config(

@@ -6,8 +6,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Annotated
 
 from torch import nn
+
+from baselines.config import AT_LEAST_0, AT_LEAST_1, FRACTION, POSITIVE, PROBABILITY, Range
 
 
 @dataclass
@@ -39,27 +42,31 @@ class QueryHeadConfig:
     MapTR's and STSU's heads share them; each adds its own instance count (`num_paths`,
     `num_pieces`) and the rest of its modelling."""
 
-    layers: int = 6
-    heads: int = 8
-    ffn_channels: int = 512
-    deform_points: int = 4  # samples per head (per anchor) in the deformable cross-attention
-    dropout: float = 0.1
+    layers: Annotated[int, AT_LEAST_1] = 6
+    heads: Annotated[int, AT_LEAST_1] = 8
+    ffn_channels: Annotated[int, AT_LEAST_1] = 512
+    # samples per head (per anchor) in the deformable cross-attention
+    deform_points: Annotated[int, AT_LEAST_1] = 4
+    dropout: Annotated[float, FRACTION] = 0.1
     # 0: off; s: the decoder also reads the BEV features lifted to cells s times smaller, which a dense
     # lane and direction loss on the prepared rasters trains (baselines/layers/fine_bev.py; the tiny presets')
-    fine_scale: float = 0.0
-    fine_weight: float = 1.0
+    fine_scale: Annotated[float, AT_LEAST_0] = 0.0
+    fine_weight: Annotated[float, AT_LEAST_0] = 1.0
     # 0: off; w: HDMapNet's head of width w on the BEV (baselines/layers/raster_head.py; the tiny presets'),
     # trained on the prepared rasters, whose lane probability moves the regressed points up to
     # snap_radius m across their polyline onto their lane's centre
-    lane_head_width: int = 0
-    lane_head_resolution: float = 0.3  # metres per cell of its raster (a whole multiple of the prepared 0.15)
-    lane_weight: float = 1.0
-    snap_radius: float = 1.0
-    cls_weight: float = 2.0  # focal classification, in the loss and in the Hungarian matching's cost
-    point_weight: float = 5.0  # L1 of the matched instances' points (STSU: of their control points)
-    focal_alpha: float = 0.25
-    focal_gamma: float = 2.0
-    score_threshold: float = 0.4  # instances kept at inference
+    lane_head_width: Annotated[int, AT_LEAST_0] = 0
+    # metres per cell of its raster (a whole multiple of the prepared 0.15)
+    lane_head_resolution: Annotated[float, POSITIVE] = 0.3
+    lane_weight: Annotated[float, AT_LEAST_0] = 1.0
+    snap_radius: Annotated[float, AT_LEAST_0] = 1.0
+    # focal classification, in the loss and in the Hungarian matching's cost
+    cls_weight: Annotated[float, AT_LEAST_0] = 2.0
+    # L1 of the matched instances' points (STSU: of their control points)
+    point_weight: Annotated[float, AT_LEAST_0] = 5.0
+    focal_alpha: Annotated[float, PROBABILITY] = 0.25
+    focal_gamma: Annotated[float, AT_LEAST_0] = 2.0
+    score_threshold: Annotated[float, PROBABILITY] = 0.4  # instances kept at inference
 
     @property
     def needs_raster(self) -> bool:
@@ -72,18 +79,22 @@ class PieceHeadConfig(QueryHeadConfig):
     """What MapTR's and STSU's heads share beyond the query decoder: the pieces, their links and the
     post-processing's duplicate suppression."""
 
-    num_pieces: int = 100  # instance queries: frames hold more pieces than paths (pieces end at junctions)
-    piece_points: int = 20  # points per piece (MapTR's 20; the prepared targets are resampled to it)
-    link_weight: float = 1.0
-    max_link_pos_weight: float = 50.0  # the association loss's positive weight is clamped to this
-    link_threshold: float = 0.5  # association probability above which i -> j is a link
+    # instance queries: frames hold more pieces than paths (pieces end at junctions)
+    num_pieces: Annotated[int, AT_LEAST_1] = 100
+    # points per piece (MapTR's 20; the prepared targets are resampled to it)
+    piece_points: Annotated[int, Range(low=2)] = 20
+    link_weight: Annotated[float, AT_LEAST_0] = 1.0
+    # the association loss's positive weight is clamped to this
+    max_link_pos_weight: Annotated[float, POSITIVE] = 50.0
+    # association probability above which i -> j is a link
+    link_threshold: Annotated[float, PROBABILITY] = 0.5
     # 0: off (the papers'); r: a piece with `duplicate_overlap` of its points within r metres of a
     # higher-scoring piece is dropped before Piece2Graph (benchmark/graphs/piece2graph.py suppress_duplicates)
-    duplicate_radius: float = 0.0
-    duplicate_overlap: float = 0.5
+    duplicate_radius: Annotated[float, AT_LEAST_0] = 0.0
+    duplicate_overlap: Annotated[float, PROBABILITY] = 0.5
     # MapTRv2's one-to-many matching (0 pieces: off): this many extra queries, in training only, matched
     # to the ground truth repeated `one_to_many_repeats` times, their set loss weighted by
     # `one_to_many_weight`
-    one_to_many_pieces: int = 0
-    one_to_many_repeats: int = 3
-    one_to_many_weight: float = 1.0
+    one_to_many_pieces: Annotated[int, AT_LEAST_0] = 0
+    one_to_many_repeats: Annotated[int, AT_LEAST_1] = 3
+    one_to_many_weight: Annotated[float, AT_LEAST_0] = 1.0

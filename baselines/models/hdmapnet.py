@@ -19,12 +19,13 @@ in image coordinates, where rows run down and so flip the sign of the y componen
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 import torch
 from torch import nn
 
-from baselines.config import Config
+from baselines.config import AT_LEAST_0, AT_LEAST_1, POSITIVE, PROBABILITY, Config
 from baselines.layers.bev_encoder import BEVEncoder, SensorBatch
 from baselines.layers.raster_head import RasterHead, raster_shape
 from baselines.layers.raster_targets import raster_losses
@@ -41,15 +42,17 @@ class HDMapNetConfig:
     """The BevEncode head and its loss. `width` is its ResNet-18 width: layer1-3 have width, 2 x width and
     4 x width channels, an `Up` block 4 x width and the last convolution 2 x width (HDMapNet: 64)."""
 
-    width: int = 64
+    width: Annotated[int, AT_LEAST_1] = 64
     # metres per output cell: the prepared rasters' (0.15), or a whole multiple of it, whose targets are
     # the rasters pooled (the tiny preset's 0.3 m: a quarter of the cost, as its coarser BEV grid)
-    resolution: float = 0.15
-    direction_bins: int = 36  # the prepared rasters' bins, to hand Pixel2Graph the predicted direction
-    seg_weight: float = 1.0
-    direction_weight: float = 1.0
-    lane_class_weight: float = 1.0  # cross-entropy weight of the lane class (HDMapNet's BCE: 2.13)
-    score_threshold: float = 0.5  # lane probability above which a cell is lane
+    resolution: Annotated[float, POSITIVE] = 0.15
+    # the prepared rasters' bins, to hand Pixel2Graph the predicted direction
+    direction_bins: Annotated[int, AT_LEAST_1] = 36
+    seg_weight: Annotated[float, AT_LEAST_0] = 1.0
+    direction_weight: Annotated[float, AT_LEAST_0] = 1.0
+    # cross-entropy weight of the lane class (HDMapNet's BCE: 2.13)
+    lane_class_weight: Annotated[float, AT_LEAST_0] = 1.0
+    score_threshold: Annotated[float, PROBABILITY] = 0.5  # lane probability above which a cell is lane
 
 
 # Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP

@@ -13,12 +13,13 @@ Path2Graph.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from baselines.config import Config
+from baselines.config import AT_LEAST_0, AT_LEAST_1, Config, Range
 from baselines.layers.bev_encoder import BEVEncoder, SensorBatch
 from baselines.layers.blocks import count, mean_over_processes, sigmoid_focal_loss
 from baselines.layers.fine_bev import fine_losses
@@ -42,11 +43,12 @@ class DecoderConfig(QueryHeadConfig):
     """LaneGAP's MapTR-style path decoder and its loss (paper Eq. 3 and 4): the query models' shared
     decoder settings (QueryHeadConfig) and LaneGAP's own."""
 
-    num_paths: int = 50  # instance queries
-    path_points: int = 30  # N points per path (10 / 20 / 30 / 40)
-    bezier_points: int = 0  # 0: polyline head; K > 0: Bezier head with K control points (paper: 5)
+    num_paths: Annotated[int, AT_LEAST_1] = 50  # instance queries
+    path_points: Annotated[int, Range(low=2)] = 30  # N points per path (10 / 20 / 30 / 40)
+    # 0: polyline head; K > 0: Bezier head with K control points (paper: 5)
+    bezier_points: Annotated[int, AT_LEAST_0] = 0
     aux_seg: bool = True  # auxiliary BEV segmentation (training only)
-    seg_weight: float = 1.0
+    seg_weight: Annotated[float, AT_LEAST_0] = 1.0
 
 
 def paper_head() -> DecoderConfig:

@@ -11,8 +11,9 @@ cross-entropy. The post-processing: pieces and links through Piece2Graph.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
-from baselines.config import Config
+from baselines.config import AT_LEAST_0, Config
 from baselines.models.base import Built, PieceHeadConfig, preset_head
 from baselines.models.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
 
@@ -21,7 +22,7 @@ from baselines.models.piecewise import PieceCriterion, PieceModel, PiecePostProc
 class MapTRConfig(PieceHeadConfig):
     """The piece-wise models' shared settings (PieceHeadConfig) and MapTR's own."""
 
-    direction_weight: float = 0.005
+    direction_weight: Annotated[float, AT_LEAST_0] = 0.005
 
 
 # Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP within

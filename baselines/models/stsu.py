@@ -14,10 +14,11 @@ curves sampled at `piece_points`, pieces and links through Piece2Graph.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import torch
 
-from baselines.config import Config
+from baselines.config import Config, Range
 from baselines.layers.blocks import bernstein_basis, bernstein_matrix, combine_points
 from baselines.models.base import Built, PieceHeadConfig, preset_head
 from baselines.models.piecewise import PieceCriterion, PieceModel, PiecePostProcess, piece_needs
@@ -28,7 +29,7 @@ class STSUConfig(PieceHeadConfig):
     """The piece-wise models' shared settings (PieceHeadConfig; point_weight weighs the L1 of the control
     points, piece_points are the fitted pieces' points and the curves' samples) and STSU's own."""
 
-    bezier_points: int = 4  # control points per piece (STSU: a cubic)
+    bezier_points: Annotated[int, Range(low=2)] = 4  # control points per piece (STSU: a cubic)
 
 
 # Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP within

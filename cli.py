@@ -347,7 +347,9 @@ def train(
         "never stop)",
     ),
     resume: bool = typer.Option(False, help="Continue the run in --out from its last checkpoint"),
-    overwrite: bool = typer.Option(False, help="Start afresh in an --out that holds a run (else refused)"),
+    overwrite: bool = typer.Option(
+        False, help="Start afresh in an --out that holds a run (else refused), removing its files first"
+    ),
     stop_after: int = typer.Option(
         0, min=0, help="End this run after that many epochs (0: all); --resume goes on"
     ),
@@ -366,18 +368,23 @@ def train(
     """
     from baselines.config import apply_overrides
     from baselines.models import load_config, resolve_config
+    from baselines.run_folder import TRAINING_FILES, RunFolder
     from baselines.train import train as run_train
 
     long_run = {"eval_every": eval_every, "eval_frames": eval_frames, "best_metric": best_metric,
                 "checkpoint_every": checkpoint_every, "max_bad_steps": max_bad_steps}  # fmt: skip
     long_run = [f"train.{name}={value}" for name, value in long_run.items() if value is not None]
+    told: set[str] = set()  # on resume, the fields changed on this command line (logged in run.json)
     with reported_errors():
+        RunFolder.check_free(out, resume, overwrite)
         if resume:  # the run's own config; --epochs, the options of long runs and --set may change it
             if not (out / "config.json").is_file() or not (out / "run.json").is_file():
                 raise ValueError(f"--out {out}: no run to resume (config.json and run.json of cli train)")
             config = load_config(out / "config.json")
-            apply_overrides(config, [f"train.epochs={epochs}"] if epochs else [], "--epochs")
+            given = [f"train.epochs={epochs}"] if epochs else []
+            apply_overrides(config, given, "--epochs")
             apply_overrides(config, long_run + set_)
+            told = {item.partition("=")[0].strip() for item in given + long_run + set_}
             data = data or Path(json.loads((out / "run.json").read_text())["data"])
         else:
             weights = str(pretrained) if pretrained else None
@@ -388,14 +395,14 @@ def train(
                                     from_scratch)  # fmt: skip
         if data is None:
             raise ValueError("--data is required")
-        summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite)
+        summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite,
+                            told=told)  # fmt: skip
     if not as_json and os.environ.get("RANK", "0") != "0":
         return  # under torchrun, rank 0 reports
     from benchmark.tables import finish, train_table
 
     heading = f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {data}"
-    names = ("config.json", "run.json", "checkpoint.pt", "best.pt", "log.jsonl", "val.jsonl", "tb")
-    wrote = [out / name for name in names if (out / name).exists()]
+    wrote = [out / name for name in TRAINING_FILES if (out / name).exists()]
     finish(summary, [(heading, train_table(summary))], wrote, as_json)
 
 
@@ -449,8 +456,9 @@ def eval_(
     table, notes = eval_table(result)
     others, other_notes = variant_tables(result)
     heading = f"{run} on {result['split']} of {result['data']}: {result['frames']} frames"
-    names = ("predictions.parquet", "frame_counts.parquet", "metrics.json")
-    wrote = [run / name for name in names if (run / name).is_file()]
+    from baselines.run_folder import EVALUATION_FILES
+
+    wrote = [run / name for name in EVALUATION_FILES if (run / name).is_file()]
     finish(result, [(heading, table), *others], wrote, as_json, notes + other_notes)
 
 

@@ -2,7 +2,8 @@
 content, loaded with weights_only=True (a crafted file cannot run code), never loaded when damaged.
 
 RUN_DIR keeps checkpoint.pt (the latest), checkpoint.prev.pt (the one before; resume falls back to it,
-saying so in one line, when checkpoint.pt is damaged) and best.pt (the best validation so far). A
+saying so in one line, when checkpoint.pt is damaged; the damaged one becomes checkpoint.bad.pt) and best.pt
+(a copy of the checkpoint of the best validation so far). A
 paper-preset checkpoint is ~430 MiB: `CheckpointWriter` copies the state off the device and hashes and
 writes it on a thread of its own, so that a step waits only for the copy (docs/EXPERIMENTS.md).
 """
@@ -16,6 +17,7 @@ import pickle
 import random
 import shutil
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +26,7 @@ from rich.console import Console
 
 console = Console(stderr=True)
 CHECKPOINT, PREVIOUS, BEST = "checkpoint.pt", "checkpoint.prev.pt", "best.pt"
+DAMAGED = "checkpoint.bad.pt"
 CHOICES = {"last": CHECKPOINT, "best": BEST}  # cli eval --checkpoint
 
 
@@ -84,6 +87,23 @@ def save_checkpoint(state: dict, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def copy_atomic(source: Path, target: Path) -> None:
+    """`source`'s bytes to `target`, which readers see whole or not at all."""
+    tmp = target.with_name(f".{target.name}.tmp")
+    shutil.copyfile(source, tmp)
+    os.replace(tmp, target)
+
+
+def peek(path: Path) -> dict | None:
+    """The step and sha256 of a checkpoint file without reading its tensors (memory-mapped), or None when
+    it is missing or unreadable; to tell which checkpoint a file is, never to load it (load_checkpoint)."""
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+        return {"step": checkpoint["step"], "sha256": checkpoint["sha256"]}
+    except Exception:  # missing, damaged or not a checkpoint: the caller treats it as none
+        return None
+
+
 def on_host(value):
     """A copy of a state (nested dicts, lists, tensors) on the CPU that later steps cannot change."""
     if isinstance(value, torch.Tensor):
@@ -103,9 +123,11 @@ class CheckpointWriter:
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
 
-    def write(self, state: dict, path: Path, copies: list[Path] = ()) -> None:
+    def write(self, state: dict, path: Path, copies: list[Path] = (), then: Callable[[], None] | None = None
+              ) -> None:  # fmt: skip
         """`state` to `path` (save_checkpoint), then the file copied to each of `copies` (e.g. best.pt),
-        each atomically."""
+        each atomically, then `then()` (e.g. run.json's record of best.pt: written once best.pt holds
+        those weights), all on the writer's thread."""
         self.wait()  # never two at once: checkpoint.prev.pt must be the one before
         snapshot = on_host(state)
 
@@ -113,9 +135,9 @@ class CheckpointWriter:
             try:
                 save_checkpoint(snapshot, path)
                 for copy_path in copies:
-                    tmp = copy_path.with_name(f".{copy_path.name}.tmp")
-                    shutil.copyfile(path, tmp)
-                    os.replace(tmp, copy_path)
+                    copy_atomic(path, copy_path)
+                if then is not None:
+                    then()
             except BaseException as error:  # re-raised in the training thread by wait()
                 self._error = error
 
@@ -154,11 +176,15 @@ def load_checkpoint(path: Path) -> dict:
     return checkpoint
 
 
-def resume_checkpoint(out_dir: Path, master: bool) -> dict:
-    """checkpoint.pt, or checkpoint.prev.pt (said in one line) when checkpoint.pt is missing or damaged;
-    the damaged file is moved to checkpoint.bad.pt, so that the next save does not keep it as previous."""
+def resume_checkpoint(out_dir: Path, master: bool) -> tuple[dict, Path]:
+    """(the content, the file) of checkpoint.pt, or of checkpoint.prev.pt (said in one line) when
+    checkpoint.pt is missing or damaged; the damaged file is moved to checkpoint.bad.pt, so that the next
+    save does not keep it as previous."""
+    if not (out_dir / CHECKPOINT).is_file() and not (out_dir / PREVIOUS).is_file():
+        raise CheckpointError(f"{out_dir / CHECKPOINT}: no such checkpoint: the run stopped before it wrote "
+                              "its first; start it afresh with --overwrite")  # fmt: skip
     try:
-        return load_checkpoint(out_dir / CHECKPOINT)
+        return load_checkpoint(out_dir / CHECKPOINT), out_dir / CHECKPOINT
     except CheckpointError as error:
         if not (out_dir / PREVIOUS).is_file():
             raise
@@ -167,5 +193,5 @@ def resume_checkpoint(out_dir: Path, master: bool) -> dict:
             notice = f"{error}; resuming from {PREVIOUS} (epoch {checkpoint['epoch']})"
             console.print(notice, soft_wrap=True, markup=False, highlight=False)  # one line, as it is
             if (out_dir / CHECKPOINT).exists():
-                os.replace(out_dir / CHECKPOINT, out_dir / "checkpoint.bad.pt")
-        return checkpoint
+                os.replace(out_dir / CHECKPOINT, out_dir / DAMAGED)
+        return checkpoint, out_dir / PREVIOUS

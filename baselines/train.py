@@ -22,6 +22,7 @@ import math
 import os
 import random
 import time
+from collections.abc import Collection
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,7 +52,7 @@ from baselines.data import Batch, PreparedDataset, collate
 from baselines.device import amp_settings, cuda_settings
 from baselines.models import build, check_backbone_weights, without_pretrained_weights
 from baselines.models.base import Built
-from baselines.run_folder import RunFolder
+from baselines.run_folder import Best, RunFolder
 from baselines.validate import Validation
 from pipeline import progress
 from pipeline.manifest import PreparedData
@@ -242,18 +243,30 @@ class Trainer:
             "config": config.to_dict(),
         }
 
-    def load(self, checkpoint: dict, rank: int) -> None:
+    def load(self, checkpoint: dict, world_size: int) -> None:
         """Restore the weights, optimiser, schedule and counts of a loaded checkpoint (the RNG state is
-        restored by `train`, once the epoch's batches are drawn)."""
-        if len(checkpoint["rng"]) <= rank:
+        restored by `train`, once the epoch's batches are drawn), on as many processes as it was saved
+        by: on more, some would have no random streams; on fewer, some streams would be dropped. The
+        optimiser's settings stay the config's (a resume may change train.lr and the like)."""
+        saved_by = len(checkpoint["rng"])
+        if saved_by != world_size:
             raise CheckpointError(
-                f"the checkpoint holds the RNG states of {len(checkpoint['rng'])} process(es): resume with "
-                "as many (torchrun --nproc_per_node)"
+                f"the checkpoint holds the random streams of {saved_by} process(es), this run has "
+                f"{world_size}: resume with as many (torchrun --nproc_per_node {saved_by})"
             )
+        settings = [{k: v for k, v in g.items() if k != "params"} for g in self.optimizer.param_groups]
         self.model.load_state_dict(checkpoint["model"])
         self.optimizer.load_state_dict(checkpoint["optimizer"])
         self.scheduler.load_state_dict(checkpoint["scheduler"])
         self.scaler.load_state_dict(checkpoint["scaler"])
+        # the config's learning rates and AdamW settings, which the loaded state dicts replaced by theirs
+        for group, own in zip(self.optimizer.param_groups, settings, strict=True):
+            group.update({k: own[k] for k in ("initial_lr", "betas", "eps", "weight_decay")})
+        self.scheduler.base_lrs = [own["initial_lr"] for own in settings]
+        for group, base, factor in zip(self.optimizer.param_groups, self.scheduler.base_lrs,
+                                       self.scheduler.lr_lambdas, strict=True):  # fmt: skip
+            group["lr"] = base * factor(self.scheduler.last_epoch)  # LambdaLR's own formula
+        self.scheduler._last_lr = [group["lr"] for group in self.optimizer.param_groups]
         self.step = checkpoint["step"]
         self.skipped = checkpoint.get("skipped", 0)
         self.bad_in_a_row = checkpoint.get("bad_in_a_row", 0)
@@ -505,7 +518,8 @@ def train_one_epoch(s: Setup, epoch: int, run: RunFolder, tally: Tally, bar: Pro
         if every and number % every == 0 and number < epoch_end:
             now = time.perf_counter()
             states = all_rng_states(s.distributed)  # every rank takes part
-            state = trainer.state(epoch, number - epoch * s.steps_per_epoch, s.config, states, run.best)
+            epoch_steps = number - epoch * s.steps_per_epoch
+            state = trainer.state(epoch, epoch_steps, s.config, states, run.best_record())
             run.save(state, best=False)
             tally.checkpoint_stall.append(time.perf_counter() - now)
         last = time.perf_counter()
@@ -518,9 +532,9 @@ def validate(s: Setup, validation: Validation, run: RunFolder, epoch: int) -> bo
     record = {"step": s.trainer.step, "epoch": epoch, **validation(s.built)}
     set_rng_state(states)
     metric = s.config.train.best_metric
-    best = not run.best or record[metric] > run.best["value"]
+    best = run.best is None or record[metric] > run.best.value
     if best:
-        run.best = {"metric": metric, "value": record[metric], "epoch": epoch, "step": record["step"]}
+        run.best = Best.of(record, s.config)
     if run.master:
         run.log_validation(record)
         f1s = ", ".join(f"{name} {record[name]:.3f}" for name in dict.fromkeys(("directed_topo_f1", metric)))
@@ -573,13 +587,14 @@ def run_record(s: Setup, data: PreparedData, validation: str) -> dict:
 
 
 def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, stop_after: int = 0,
-          overwrite: bool = False) -> dict:  # fmt: skip
+          overwrite: bool = False, told: Collection[str] = ()) -> dict:  # fmt: skip
     """Train `config` on the prepared dataset `data_dir`; returns a summary (loss, steps/s, seconds).
 
     resume: continue from out_dir/checkpoint.pt. stop_after: end this run after that many epochs
     (0: run to config.train.epochs), e.g. to fit a time-limited job; a later resume carries on.
-    overwrite: start afresh in a folder that holds a run (refused otherwise: its checkpoint and log
-    would be replaced).
+    overwrite: start afresh in a folder that holds a run, every file of the earlier run removed first
+    (refused otherwise: the two runs would mix). told: on resume, the config fields (section.field) set
+    on the command line, which may differ from the checkpoint's (run_folder.config_changes).
     """
     out_dir = Path(out_dir)
     RunFolder.check_free(out_dir, resume, overwrite)
@@ -593,9 +608,9 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     run = RunFolder(out_dir, master=s.rank == 0)
     start_epoch, skip_steps, restore = 0, 0, None
     if resume:
-        checkpoint = run.resume(data)
-        s.trainer.load(checkpoint, s.rank)
-        run.resumed(checkpoint)
+        checkpoint = run.resume(data, config, told)
+        s.trainer.load(checkpoint, s.world_size)
+        run.resumed(checkpoint, config)
         start_epoch, skip_steps = checkpoint["epoch"], checkpoint.get("epoch_steps", 0)
         restore = checkpoint["rng"][s.rank]
     else:
@@ -623,7 +638,7 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
                 skip_steps, restore = 0, None
                 best = validate(s, validation, run, epoch + 1) if epoch + 1 in due else False
                 states = all_rng_states(s.distributed)  # every rank takes part
-                run.save(s.trainer.state(epoch + 1, 0, config, states, run.best), best)
+                run.save(s.trainer.state(epoch + 1, 0, config, states, run.best_record()), best)
     finally:
         run.close()
     batch_size = config.train.batch_size
@@ -637,7 +652,7 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
         "steps_per_s": tally.speed(),
         "samples_per_s": tally.speed() * batch_size,
         "skipped_steps": s.trainer.skipped,
-        "best": run.best,
+        "best": run.best_record(),
         # the longest a step waited for a checkpoint inside an epoch (its copy to the host)
         "checkpoint_stall_s": max(stalls) if stalls else None,
     }

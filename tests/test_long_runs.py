@@ -73,7 +73,8 @@ def test_validation_during_training_equals_cli_eval_and_names_the_best(validated
     first_best = validations[int(np.argmax([v["directed_topo_f1"] for v in validations]))]
     record = json.loads((run / "run.json").read_text())
     best = {"metric": "directed_topo_f1", "value": first_best["directed_topo_f1"],
-            "epoch": first_best["epoch"], "step": first_best["step"]}  # fmt: skip
+            "epoch": first_best["epoch"], "step": first_best["step"],
+            "split": "train", "eval_frames": 0, "seed": 0}  # fmt: skip
     assert record["best"] == best == record["summary"]["best"]
     assert load_checkpoint(run / "best.pt")["step"] == best["step"]
     result = cli(

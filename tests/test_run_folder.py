@@ -1,0 +1,217 @@
+"""A run folder never mixes two runs (issue 59): --overwrite removes every file of the earlier run, a
+resume goes on with its checkpoint's config unless told otherwise on its command line, best.pt compares
+like with like, run.json's best follows best.pt, and a resume runs on as many processes as saved it.
+
+On the toy prepared dataset of test_baselines_train.py (4 frames, 2 steps per epoch), so that none of this
+needs ../shared/data.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+from test_baselines_train import toy_config, write_toy_dataset
+from test_faults import cli, files, one_error_line
+
+from baselines import train as train_module
+from baselines.checkpoint import CheckpointError, load_checkpoint, peek, rng_state
+from baselines.evaluate import evaluate
+from baselines.models import load_config
+from baselines.run_folder import RUN_FILES, ConfigChange, config_changes
+from baselines.train import lr_factor, setup, train
+from pipeline.manifest import PreparedData
+
+# 4 toy frames, 2 per step, validated on the train split (the toy data has no other)
+TRAIN = (
+    "--preset tiny --modality lidar --batch-size 2 --path-points 10 --no-aux-seg --set train.threads=1 "
+    "--set train.log_every=1 --set train.val_split=train --set train.warmup_iters=2"
+).split()
+
+
+def validated_config(epochs: int):
+    config = toy_config("lidar", epochs=epochs)
+    config.train.val_split = "train"
+    return config
+
+
+def run_json(run: Path) -> dict:
+    return json.loads((run / "run.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def toy_data(tmp_path_factory) -> Path:
+    return write_toy_dataset(tmp_path_factory.mktemp("run_folder"), frames=4)
+
+
+def test_overwrite_removes_every_file_of_the_earlier_run_and_resume_never_loads_its_old_weights(
+    toy_data, tmp_path
+):
+    run = tmp_path / "run"
+    train(validated_config(epochs=2), toy_data, run)
+    evaluate(run, device="cpu", floor=False, bootstrap=0)
+    (run / "notes.txt").write_text("the user's")
+    written = {path.name for path in run.iterdir()} - {"notes.txt"}
+    # RUN_FILES knows every file of a run and its evaluation: --overwrite removes them all
+    assert written <= set(RUN_FILES)
+    expected = {"checkpoint.pt", "checkpoint.prev.pt", "best.pt", "tb", "metrics.json", "predictions.parquet",
+                "frame_counts.parquet", "log.jsonl", "val.jsonl"}  # fmt: skip
+    assert expected <= written
+
+    # a new run that stops before its first checkpoint (a kill) leaves none of the earlier run's files
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(train_module, "train_one_epoch", killed)
+        with pytest.raises(KeyboardInterrupt):
+            train(validated_config(epochs=2), toy_data, run, overwrite=True)
+    left = {path.name for path in run.iterdir()}
+    assert left - {"tb"} == {"config.json", "run.json", "log.jsonl", "val.jsonl", "notes.txt"}
+    assert (run / "notes.txt").read_text() == "the user's"
+    assert (run / "val.jsonl").read_text() == "" and "best" not in run_json(run)
+    # resumed, it is refused in one line: the earlier run's weights are never loaded
+    with pytest.raises(CheckpointError, match="checkpoint.pt: no such checkpoint.*--overwrite"):
+        train(load_config(run / "config.json"), toy_data, run, resume=True)
+    one_error_line(cli("train", "--out", run, "--resume"), "no such checkpoint", "--overwrite")
+
+
+def test_a_folder_holding_any_file_of_a_run_is_refused_without_overwrite(toy_data, tmp_path):
+    run = tmp_path / "run"
+    train(validated_config(epochs=1), toy_data, run)
+    stale = tmp_path / "stale"
+    stale.mkdir()
+    shutil.copyfile(run / "checkpoint.pt", stale / "checkpoint.pt")  # no config.json beside it
+    before = files(stale)
+    args = ["train", "--data", toy_data, "--out", stale, *TRAIN, "--epochs", 1]
+    one_error_line(cli(*args), str(stale), "holds a run already (checkpoint.pt)", "--overwrite")
+    one_error_line(cli(*args, "--resume", "--overwrite"), "--resume and --overwrite")
+    assert files(stale) == before
+
+
+def test_a_config_changed_by_hand_is_refused_and_a_set_on_resume_is_logged(toy_data, tmp_path):
+    run = tmp_path / "run"
+    result = cli("train", "--data", toy_data, "--out", run, *TRAIN, "--epochs", 2, "--stop-after", 1)
+    assert result.exit_code == 0, result.output
+    trained = json.loads((run / "config.json").read_text())
+    assert load_checkpoint(run / "checkpoint.pt")["config"] == load_config(run / "config.json").to_dict()
+    lr = trained["train"]["lr"]
+
+    edited = {**trained, "train": {**trained["train"], "lr": 2 * lr}}
+    (run / "config.json").write_text(json.dumps(edited))
+    before = files(run)
+    error = one_error_line(cli("train", "--out", run, "--resume"), "checkpoint.pt: trained with", "train.lr")
+    assert f"train.lr={lr}" in error and f"--set train.lr={2 * lr}" in error
+    assert files(run) == before  # nothing of the run was touched
+
+    (run / "config.json").write_text(json.dumps(trained))
+    result = cli("train", "--out", run, "--resume", "--set", f"train.lr={2 * lr}")
+    assert result.exit_code == 0, result.output
+    assert f"resumed at step 2 with train.lr {lr} -> {2 * lr}" in result.output
+    assert json.loads((run / "config.json").read_text()) == edited
+    assert run_json(run)["config_changes"] == [
+        {"field": "train.lr", "before": lr, "after": 2 * lr, "step": 2}
+    ]
+    checkpoint = load_checkpoint(run / "checkpoint.pt")
+    assert checkpoint["step"] == 4 and checkpoint["config"]["train"]["lr"] == 2 * lr
+    # the steps after the resume ran with the new learning rate (the schedule's factor over it)
+    config = load_config(run / "config.json")
+    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [1, 2, 3, 4]
+    assert log[1]["lr"] == pytest.approx(lr * lr_factor(2, 4, config))
+    assert log[2]["lr"] == pytest.approx(2 * lr * lr_factor(3, 4, config))
+
+
+def test_config_changes_keep_a_change_logged_from_the_checkpoints_step_on():
+    trained = {"model": "lanegap", "train": {"lr": 1.0, "epochs": 2, "betas": [0.9, 0.99]}}
+    going_on = {"model": "lanegap", "train": {"lr": 2.0, "epochs": 3, "betas": [0.9, 0.99]}, "new": {"x": 1}}
+    where = (Path("run/checkpoint.pt"), Path("run/config.json"))
+    told = config_changes(trained, going_on, {"train.lr", "train.epochs"}, [], 4, *where)
+    assert told == [ConfigChange("train.epochs", 2, 3, 4), ConfigChange("train.lr", 1.0, 2.0, 4)]
+    # a resume from step 4 again (its run stopped before a checkpoint) keeps what the first logged
+    logged = [{"field": "train.lr", "before": 1.0, "after": 2.0, "step": 4}]
+    assert config_changes(trained, going_on, {"train.epochs"}, logged, 4, *where) == told[:1]
+    # a change logged before the checkpoint's step is the checkpoint's own: this one is not explained
+    with pytest.raises(CheckpointError) as refused:
+        config_changes(trained, going_on, {"train.epochs"}, [{**logged[0], "step": 2}], 4, *where)
+    assert str(refused.value) == (
+        "run/checkpoint.pt: trained with train.lr=1.0, but run/config.json has train.lr=2.0, a change not "
+        "given on the command line: give it with --resume as --set train.lr=2.0 (then it is logged in "
+        "run.json), or put train.lr=1.0 back"
+    )
+    tuples = {"model": "lanegap", "train": {"lr": 1.0, "epochs": 2, "betas": [0.9, 0.9]}}
+    with pytest.raises(CheckpointError, match="train.betas=0.9,0.99, but .* has train.betas=0.9,0.9"):
+        config_changes(trained, tuples, set(), [], 4, *where)
+
+
+def test_another_best_metric_or_frame_subset_starts_the_best_anew(toy_data, tmp_path):
+    run = tmp_path / "run"
+    args = ["--best-metric", "directed_topo_f1", "--stop-after", 1]
+    result = cli("train", "--data", toy_data, "--out", run, *TRAIN, "--epochs", 3, *args)
+    assert result.exit_code == 0, result.output
+    first = run_json(run)["best"]
+    assert (first["metric"], first["step"], first["eval_frames"]) == ("directed_topo_f1", 2, 0)
+
+    result = cli("train", "--out", run, "--resume", "--best-metric", "miou", "--stop-after", 1)
+    assert result.exit_code == 0, result.output
+    said = [line for line in result.output.splitlines() if "starts anew" in line]
+    assert said == [
+        f"best.pt starts anew: it holds the best directed_topo_f1 on all of 'train' ({first['value']:.4f} at "
+        "step 2); this run validates by miou on all of 'train'"
+    ]
+    validations = [json.loads(line) for line in (run / "val.jsonl").read_text().splitlines()]
+    # the next validation is the best whatever its value: it is never compared with another metric's
+    best = run_json(run)["best"]
+    assert (best["metric"], best["step"], best["value"]) == ("miou", 4, validations[-1]["miou"])
+    assert load_checkpoint(run / "best.pt")["step"] == 4
+    assert run_json(run)["best_restarts"] == [{"step": 2, "previous": first, "now": "miou on all of 'train'"}]
+
+    result = cli("train", "--out", run, "--resume", "--eval-frames", 1)
+    assert result.exit_code == 0, result.output
+    assert "this run validates by miou on 1 frames of 'train' drawn by seed 0" in result.output
+    last = json.loads((run / "val.jsonl").read_text().splitlines()[-1])
+    best = run_json(run)["best"]
+    assert (last["step"], last["frames"]) == (6, 1)
+    assert (best["step"], best["eval_frames"], best["value"]) == (6, 1, last["miou"])
+    assert [entry["step"] for entry in run_json(run)["best_restarts"]] == [2, 4]
+    assert run_json(run)["summary"]["best"] == best
+
+
+def test_run_json_names_a_best_only_once_best_pt_holds_it_and_resume_repairs_a_kill_between(
+    toy_data, tmp_path, monkeypatch
+):
+    copy = shutil.copyfile
+
+    def stopped_at_best(source, target, **kwargs):  # the run stops between checkpoint.pt and best.pt
+        if Path(target).name.startswith(".best.pt"):
+            raise OSError("stopped before best.pt")
+        return copy(source, target, **kwargs)
+
+    run = tmp_path / "run"
+    monkeypatch.setattr(shutil, "copyfile", stopped_at_best)
+    with pytest.raises(OSError, match="stopped before best.pt"):
+        train(validated_config(epochs=1), toy_data, run)
+    monkeypatch.undo()
+    checkpoint = load_checkpoint(run / "checkpoint.pt")
+    assert checkpoint["best"]["step"] == checkpoint["step"] == 2
+    assert not (run / "best.pt").exists() and "best" not in run_json(run)
+
+    train(load_config(run / "config.json"), toy_data, run, resume=True)  # every epoch done: repairs only
+    assert peek(run / "best.pt") == {"step": 2, "sha256": checkpoint["sha256"]}
+    assert run_json(run)["best"] == checkpoint["best"]
+
+
+def test_a_resume_on_fewer_or_more_processes_than_saved_the_checkpoint_is_refused(toy_data):
+    config = validated_config(epochs=1)
+    trainer = setup(config, PreparedData.open(toy_data)).trainer
+    two = trainer.state(0, 0, config, [rng_state(), rng_state()], {})
+    with pytest.raises(CheckpointError, match=r"2 process\(es\), this run has 1: .*--nproc_per_node 2\)"):
+        trainer.load(two, world_size=1)
+    one = trainer.state(0, 0, config, [rng_state()], {})
+    with pytest.raises(CheckpointError, match=r"1 process\(es\), this run has 2: .*--nproc_per_node 1\)"):
+        trainer.load(one, world_size=2)
+    trainer.load(one, world_size=1)
+    assert all(torch.equal(v, one["model"][k]) for k, v in trainer.model.state_dict().items())

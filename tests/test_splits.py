@@ -80,12 +80,13 @@ def test_the_geographic_scheme_keeps_every_val_frame_beyond_the_buffer(synth_raw
     assert {f["split"] for f in frames} == {"train", "val"}
     assert len(frames) + summary["frames_in_buffer"] == len(av2_frames)
     distances = np.array(list(nearest_training(frames).values()))
-    assert distances.min() > 30.0  # the buffer: half of the 30 x 60 m range's length
+    diagonal = float(np.hypot(30.0, 60.0))  # the buffer: no val window shares ground with a training window
+    assert distances.min() > diagonal
     row = manifest(out)["leakage"]["splits"]["val"]
-    assert row["within_5m"] == row["within_range"] == 0.0
+    assert row["within_5m"] == row["within_range"] == row["overlapping"] == row["covered"] == 0.0
     parameters = manifest(out)["parameters"]
     assert (parameters["split_scheme"], parameters["geo_cell"], parameters["geo_buffer"],
-            parameters["geo_seed"]) == ("geographic", 50.0, 30.0, 3)  # fmt: skip
+            parameters["geo_seed"]) == ("geographic", 50.0, pytest.approx(diagonal), 3)  # fmt: skip
     assert (out / "splits.png").is_file()
     # the same inputs and seed: the same split
     again = tmp_path / "again"
@@ -95,13 +96,17 @@ def test_the_geographic_scheme_keeps_every_val_frame_beyond_the_buffer(synth_raw
     assert [(f["frame_id"], f["split"]) for f in frames_of(again)] == placed
 
 
-def test_re_preparing_one_split_keeps_the_leakage_of_the_others(synth_raw, tmp_path):
+def test_adding_a_split_keeps_the_leakage_of_the_others_and_overwrite_starts_afresh(synth_raw, tmp_path):
     out = tmp_path / "out"
     whole = prepare("av2", synth_raw / "av2" / "sensor", out, TargetOptions())["leakage"]
-    again = prepare("av2", synth_raw / "av2" / "sensor", out, TargetOptions(), split="val", overwrite=True)
-    assert again["leakage"] == whole == manifest(out)["leakage"] and whole["splits"]["val"]["frames"] == 20
-    only_val = prepare("av2", synth_raw / "av2" / "sensor", tmp_path / "val", TargetOptions(), split="val")
+    # a run without --overwrite adds to the folder: the leakage is the whole folder's
+    again = prepare("av2", synth_raw / "av2" / "sensor", out, TargetOptions(), split="val")
+    assert again["logs_already_done"] == 1 and again["leakage"] == whole == manifest(out)["leakage"]
+    assert whole["splits"]["val"]["frames"] == 20
+    # --overwrite starts afresh: the training logs go, and the leakage says so
+    only_val = prepare("av2", synth_raw / "av2" / "sensor", out, TargetOptions(), split="val", overwrite=True)
     assert only_val["leakage"]["splits"] == {} and "no training frames" in only_val["leakage"]["note"]
+    assert {f["split"] for f in frames_of(out)} == {"val"} and manifest(out)["rows"]["frames"] == 20
 
 
 def test_nuscenes_sample_tokens_and_frame_ids_name_frames(synth_raw, synth_prepared, tmp_path):

@@ -209,7 +209,11 @@ def prepare(
     on_error: Literal["fail", "skip"] = typer.Option(
         "fail", help="fail: stop at the first bad record; skip: log it to errors.jsonl and go on"
     ),
-    overwrite: bool = typer.Option(False, help="Redo logs whose shards already exist"),
+    overwrite: bool = typer.Option(
+        False,
+        help="Start afresh: once this run has succeeded, all that earlier runs wrote in --out goes "
+        "(shards, manifest, errors, picture; other files stay)",
+    ),
     split_file: list[str] = typer.Option(
         [],
         metavar="SPLIT=FILE",

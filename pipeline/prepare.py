@@ -27,7 +27,7 @@ from pipeline.manifest import read_manifest
 from pipeline.progress import tracked
 from pipeline.records import Frame, Log, LogIndex
 from pipeline.splits.geographic import draw_dataset_splits
-from pipeline.splits.leakage import read_and_measure
+from pipeline.splits.leakage import reach, read_and_measure
 from pipeline.splits.plan import (
     SCHEMES,
     geographic_plan,
@@ -45,6 +45,8 @@ MANIFEST, ERRORS, PICTURE = "manifest.json", "errors.jsonl", "splits.png"
 # where an --overwrite run writes until all of it has succeeded, in OUT: the earlier output stays whole
 # until then, and OUT is on the same file system, so the new files move in by rename
 STAGE = ".overwrite"
+# what manifest.json holds of the summary beside its last_run: measured over the whole folder, or the plan's
+BESIDE_LAST_RUN = ("leakage", "split_shares")
 
 
 @dataclass(frozen=True)
@@ -370,7 +372,7 @@ def package_versions() -> dict[str, str]:
 class SplitOptions:
     """How frames are put in splits: the dataset's own or `split_files` (the original scheme), or the
     geographic scheme's cells of `geo_cell` metres, buffer of `geo_buffer` metres (None: the range's
-    half-length) and seed."""
+    diagonal, so that no val or test window shares ground with a training window) and seed."""
 
     scheme: str = "original"
     split_files: dict[str, Path] | None = None
@@ -389,13 +391,7 @@ class SplitOptions:
         if self.geo_buffer is not None and not self.geo_buffer >= 0:
             raise ValueError(f"--geo-buffer must be 0 m or more, not {self.geo_buffer}")
         if self.geo_buffer is None:
-            self.geo_buffer = half_length(options)
-
-
-def half_length(options: TargetOptions) -> float:
-    """Half the perception range's longer side: two frames closer than this see overlapping windows."""
-    r = options.bev_range
-    return max(r.x_max - r.x_min, r.y_max - r.y_min) / 2
+            self.geo_buffer = reach(options.bev_range)
 
 
 @dataclass
@@ -576,7 +572,7 @@ def clear_stage(stage: Path) -> None:
     for path in written_files(stage):
         path.unlink()
     for folder in [stage / table for table in io.TABLES] + [stage]:
-        with contextlib.suppress(FileNotFoundError, OSError):  # absent, or holding what is not ours
+        with contextlib.suppress(OSError):  # absent, or holding what is not ours
             folder.rmdir()
 
 
@@ -618,7 +614,8 @@ def append_errors(out: Path, errors: list[dict]) -> None:
 
 
 def summarize(plan: Plan, todo: list[Job], results: list[LogResult], seconds: float, leakage: dict) -> dict:
-    """The run's summary: what `prepare` returns and the manifest's last_run."""
+    """The run's summary: what `prepare` returns and the manifest's last_run (its leakage and the
+    geographic scheme's achieved shares stand beside it)."""
     jobs, frames = plan.jobs, sum(r.frames for r in results)
     return {
         "logs": len(jobs),
@@ -635,6 +632,7 @@ def summarize(plan: Plan, todo: list[Job], results: list[LogResult], seconds: fl
         "frames_per_second": frames / seconds if seconds > 0 else 0.0,
         "peak_worker_mib": max((r.peak_mib for r in results), default=0.0),
         "leakage": leakage,
+        **({"split_shares": plan.geo.achieved()} if plan.geo is not None else {}),
     }
 
 
@@ -655,7 +653,8 @@ def write_manifest(
             "packages": package_versions(),
             "rows": {table: io.count_rows(out, table) for table in io.TABLES},
             "leakage": summary["leakage"],
-            "last_run": {key: value for key, value in summary.items() if key != "leakage"},
+            **({"split_shares": summary["split_shares"]} if "split_shares" in summary else {}),
+            "last_run": {key: value for key, value in summary.items() if key not in BESIDE_LAST_RUN},
         },
     )  # fmt: skip
 
@@ -749,7 +748,7 @@ def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, 
                            run.address, advance)  # fmt: skip
     elapsed = time.perf_counter() - start
     append_errors(out, [e for r in results for e in r.errors])
-    leakage = read_and_measure(out, half_length(run.options))
+    leakage = read_and_measure(out, run.options.bev_range)
     summary = summarize(plan, todo, results, elapsed, leakage)
     write_manifest(out, run.dataset, run.root, run.version, parameters, run.split, run.options, summary)
     cells = plan.geo.cells if plan.geo is not None else None

@@ -380,6 +380,7 @@ def test_the_report_writes_relative_paths(made, monkeypatch):
 
 
 def test_the_data_split_scheme_and_leakage_stand_under_the_main_table(made, tmp_path):
+    from pipeline.geometry import Range
     from pipeline.splits.leakage import leakage_line, read_and_measure
 
     data, run = tmp_path / "av2", tmp_path / "runs" / "lanegap_lidar"
@@ -388,7 +389,7 @@ def test_the_data_split_scheme_and_leakage_stand_under_the_main_table(made, tmp_
     metrics = json.loads((run / "metrics.json").read_text())
     (run / "metrics.json").write_text(json.dumps({**metrics, "data": str(data)}))
     manifest = json.loads((data / "manifest.json").read_text())
-    leakage = read_and_measure(data, 30.0)
+    leakage = read_and_measure(data, Range())
     assert leakage["splits"]["val"]["within_5m"] == 0.0  # the validation log drives no training road
     parameters = {k: v for k, v in manifest["parameters"].items() if k != "split_scheme"}
     old = {k: v for k, v in manifest.items() if k != "leakage"} | {"parameters": parameters}  # before leakage

@@ -1,5 +1,6 @@
 """Geographic splits (`cli prepare --split-scheme geographic`): frames assigned to train / val / test by
-place, in compact groups of map cells with a buffer to training ground, and a map picture of any split."""
+place, in compact groups of map cells with a buffer to training ground (by default wide enough that no val
+or test window shares ground with a training window), and a map picture of any split."""
 
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from pipeline.geometry import Range
 from pipeline.io import write_atomic
-from pipeline.splits.leakage import frame_places, is_training
+from pipeline.splits.leakage import frame_places, is_training, reach
 
 GROUPS_PER_SMALLEST_SPLIT = 4  # a city is cut into about this many groups per share of its smallest split
 ORDERS = 16  # seeded orders of a city's groups tried; the one whose kept shares come nearest the targets wins
@@ -22,6 +24,9 @@ PANEL_INCHES = 5.0  # one city's panel in draw_split_map, square
 DPI = 100
 LEFT_OUT = "#7f7f7f"  # left-out frames: dark enough to see on the tinted cells
 CELL_EDGE = (0.0, 0.0, 0.0, 0.15)
+# frames farther apart than this never see a common patch of ground in the default 30 x 60 m window,
+# whatever their headings (its diagonal, 67.08 m)
+DEFAULT_BUFFER_M = reach(Range())
 
 
 @dataclass
@@ -31,7 +36,19 @@ class GeoSplit:
     split_names: list[str]  # training splits first, then the others, each by name
     left_out: dict[str, int]  # frames left out per city
     shares: dict[str, float]  # per split its share of the kept frames (all cities)
+    city_shares: dict[str, dict[str, float]]  # per city, per split its share of the city's kept frames
+    kept: dict[str, int]  # frames kept per city (in a split, not in the buffer)
     parameters: dict  # cell_m, buffer_m, seed, targets, groups per city, splits missing in a city
+
+    def achieved(self) -> dict:
+        """What the scheme gave, for manifest.json and the summary: the target shares, the kept shares of
+        all cities and of each city (with its kept and left-out frames), and the splits a city lacks."""
+        cities = {
+            city: {"frames": self.kept[city], "left_out": self.left_out[city], "shares": shares}
+            for city, shares in self.city_shares.items()
+        }
+        return {"targets": self.parameters["targets"], "shares": self.shares, "cities": cities,
+                "missing": self.parameters["missing"]}  # fmt: skip
 
 
 def ordered_splits(names) -> list[str]:
@@ -132,15 +149,18 @@ def geographic(
     xy: np.ndarray,
     original: Sequence[str],
     cell_m: float = 100.0,
-    buffer_m: float = 30.0,
+    buffer_m: float = DEFAULT_BUFFER_M,
     seed: int = 0,
 ) -> GeoSplit:
     """Each frame's split by place. Per city the positions (xy: (N, 2) world x, y in metres) fall into
     square cells of cell_m; the cells are grouped into compact runs of about equal frame counts, and the
     groups go to the original splits (seeded order, greedy by deficit) so that each split's share of the
     city's frames nears its share of the original frames. A non-training frame within buffer_m of a
-    training frame of its city is left out (None); training frames are never dropped. A city with too
-    few cells for every split gets what the greedy gives (parameters["missing"] names those splits)."""
+    training frame of its city is left out (None); training frames are never dropped. With buffer_m at
+    least `reach` of the window (the default: the 30 x 60 m window's diagonal) no kept val or test window
+    intersects a training window, whatever the headings. A city with too few cells for every split gets
+    what the greedy gives (parameters["missing"] names those splits); a split that gets no frame in any
+    city is an error (ValueError naming the split, the cities and --geo-cell)."""
     cities = [str(c) for c in cities]
     original = [str(s) for s in original]
     xy = np.asarray(xy, dtype=np.float64)
@@ -183,7 +203,15 @@ def geographic(
             missing[city] = absent
 
     kept = np.bincount(split_of[~dropped], minlength=len(names))
+    if empty := [n for i, n in enumerate(names) if kept[i] == 0]:
+        raise ValueError(no_frame_for(empty, names, original_index, city_names, city_of, cells, cell_m,
+                                      buffer_m))  # fmt: skip
     shares = {n: float(kept[i] / max(kept.sum(), 1)) for i, n in enumerate(names)}
+    city_shares, city_kept = {}, {}
+    for c, city in enumerate(city_names.tolist()):
+        here = np.bincount(split_of[(city_of == c) & ~dropped], minlength=len(names))
+        city_kept[city] = int(here.sum())
+        city_shares[city] = {n: float(here[i] / max(here.sum(), 1)) for i, n in enumerate(names)}
     parameters = {
         "cell_m": float(cell_m),
         "buffer_m": float(buffer_m),
@@ -194,7 +222,28 @@ def geographic(
         "missing": missing,
     }
     split = [None if d else names[s] for s, d in zip(split_of.tolist(), dropped.tolist())]
-    return GeoSplit(split, cells, names, left_out, shares, parameters)
+    return GeoSplit(split, cells, names, left_out, shares, city_shares, city_kept, parameters)
+
+
+def no_frame_for(empty, names, original_index, city_names, city_of, cells, cell_m, buffer_m) -> str:
+    """The one line of splits that the scheme leaves without a frame, though the dataset has some: the
+    splits, the cities with their frames and cells, and what to change."""
+    splits = ", ".join(f"{name!r} ({_count(int((original_index == names.index(name)).sum()), 'frame')} "
+                       "in the dataset)" for name in empty)  # fmt: skip
+    counts = np.bincount(city_of, minlength=len(city_names))
+    cities = ", ".join(
+        f"{city} ({_count(int(counts[c]), 'frame')} in {_count(len(cells[city]), 'cell')})"
+        for c, city in enumerate(city_names.tolist())
+    )
+    return (
+        f"split {splits} gets no frame: the cities {cities} have too few cells of --geo-cell {cell_m:g} m to "
+        f"share out beyond the {buffer_m:.4g} m buffer to training ground; try a smaller --geo-cell (or the "
+        "original split scheme)"
+    )
+
+
+def _count(n: int, word: str) -> str:
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
 
 
 def _colours(names: list[str]) -> dict[str, tuple]:
@@ -304,5 +353,5 @@ def draw_dataset_splits(
     data: Path, path: Path, cells: dict | None = None, cell_m: float | None = None
 ) -> None:
     """draw_split_map of every frame of a prepared dataset (its `frames` table), e.g. DATA/splits.png."""
-    split, cities, xy = frame_places(data)
-    draw_split_map(cities, xy, split, path, cells=cells, cell_m=cell_m)
+    places = frame_places(data)
+    draw_split_map(places.cities, places.xy, places.splits, path, cells=cells, cell_m=cell_m)

@@ -1,18 +1,27 @@
-"""Train/validation leakage of a prepared dataset: how close each non-training frame lies to the nearest
-training frame of its city (Lilja et al., "Localization Is All You Evaluate", CVPR 2024), and its line."""
+"""Train/validation leakage of a prepared dataset (Lilja et al., "Localization Is All You Evaluate", CVPR
+2024): how close each non-training frame lies to the nearest training frame of its city, whether its BEV
+window shares ground with a training frame's window, and how much of it they cover; and its line."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from pipeline import io
+from pipeline.geometry import Range
+from pipeline.kernels import kernel
 
 NEAR_M = 5.0  # the paper's radius: a frame this close to a training frame sees much the same map
+# The covered share is counted at the points of a Fibonacci lattice in the window (F(20) points, F(19) their
+# step). Each coordinate takes each of its COVER_POINTS values once, so an edge parallel to the window's sides
+# (a training frame on the same heading) is placed to 1/COVER_POINTS of the window; a regular grid's rows
+# would bias the share by up to half a row at every such edge.
+COVER_POINTS, COVER_STEP = 6765, 4181
 NO_TRAINING_NOTE = "no training frames: leakage not measured"
 UNKNOWN = "unknown"  # the name of a frame's split or city when the table holds none
 
@@ -22,82 +31,249 @@ def is_training(split: str) -> bool:
     return split == "train" or split.endswith("_train")
 
 
-def _shares(distances: np.ndarray, range_m: float) -> dict:
-    """frames, within_5m, within_range and median_m (over the finite distances; None without any)."""
-    finite = distances[np.isfinite(distances)]
+def reach(window: Range) -> float:
+    """The farthest apart two poses can be while their windows still share ground, whatever the headings:
+    twice the distance from the pose to the window's farthest corner (the diagonal of a centred window)."""
+    return 2.0 * window.radius
+
+
+def half_length(window: Range) -> float:
+    """Half the window's longer side: the radius of `within_range`."""
+    return max(window.x_max - window.x_min, window.y_max - window.y_min) / 2
+
+
+@dataclass
+class Places:
+    """Where a prepared dataset's frames are: per frame its split, city, world x, y of the BEV origin and
+    yaw (the angle of the BEV x axis, to the right of the heading, from the world x axis, radians)."""
+
+    splits: list[str | None]
+    cities: list[str | None]
+    xy: np.ndarray  # (N, 2) float64
+    yaw: np.ndarray  # (N,) float64
+
+
+def window_centres(xy: np.ndarray, yaw: np.ndarray, window: Range) -> np.ndarray:
+    """World x, y of the centre of each frame's window (the pose itself for a window centred on it)."""
+    cx, cy = (window.x_min + window.x_max) / 2, (window.y_min + window.y_max) / 2
+    c, s = np.cos(yaw), np.sin(yaw)
+    return xy + np.stack([c * cx - s * cy, s * cx + c * cy], axis=1)
+
+
+def window_corners(xy: np.ndarray, yaw: np.ndarray, window: Range) -> np.ndarray:
+    """(N, 4, 2) world corners of each frame's window, counter-clockwise."""
+    local = np.array([[window.x_min, window.y_min], [window.x_max, window.y_min],
+                      [window.x_max, window.y_max], [window.x_min, window.y_max]])  # fmt: skip
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    x, y = local[:, 0], local[:, 1]
+    return np.asarray(xy)[:, None, :] + np.stack([c * x - s * y, s * x + c * y], axis=-1)
+
+
+@kernel
+def _overlap_cover(query_c, query_u, train_c, train_u, starts, candidates, hx, hy, samples):
+    """Per query window (centre, unit x axis): whether it intersects any of its candidate training windows
+    (the separating-axis test of two rectangles of half-sides hx, hy; touching counts), and the share of its
+    sample points (window coordinates about its centre) that those intersecting windows cover."""
+    n = len(query_c)
+    overlapping = np.zeros(n, dtype=np.bool_)
+    covered = np.zeros(n)
+    hits = np.empty(len(candidates), dtype=np.int64)
+    for q in range(n):
+        qu_x, qu_y = query_u[q, 0], query_u[q, 1]  # the window's x axis; its y axis is (-qu_y, qu_x)
+        n_hits = 0
+        for k in range(starts[q], starts[q + 1]):
+            t = candidates[k]
+            tu_x, tu_y = train_u[t, 0], train_u[t, 1]
+            dx, dy = train_c[t, 0] - query_c[q, 0], train_c[t, 1] - query_c[q, 1]
+            # |cos| and |sin| of the angle between the windows: each one's half-widths along the other's axes
+            cos_a = abs(qu_x * tu_x + qu_y * tu_y)
+            sin_a = abs(qu_x * tu_y - qu_y * tu_x)
+            apart = (
+                abs(dx * qu_x + dy * qu_y) > hx + hx * cos_a + hy * sin_a
+                or abs(-dx * qu_y + dy * qu_x) > hy + hx * sin_a + hy * cos_a
+                or abs(dx * tu_x + dy * tu_y) > hx + hx * cos_a + hy * sin_a
+                or abs(-dx * tu_y + dy * tu_x) > hy + hx * sin_a + hy * cos_a
+            )
+            if not apart:
+                hits[n_hits] = t
+                n_hits += 1
+        if n_hits == 0:
+            continue
+        overlapping[q] = True
+        count, last = 0, 0
+        for s in range(len(samples)):
+            px = query_c[q, 0] + samples[s, 0] * qu_x - samples[s, 1] * qu_y
+            py = query_c[q, 1] + samples[s, 0] * qu_y + samples[s, 1] * qu_x
+            # the window that covered the previous point first: neighbouring points mostly share one
+            for step in range(n_hits):
+                h = last + step if last + step < n_hits else last + step - n_hits
+                t = hits[h]
+                dx, dy = px - train_c[t, 0], py - train_c[t, 1]
+                if (
+                    abs(dx * train_u[t, 0] + dy * train_u[t, 1]) <= hx
+                    and abs(dy * train_u[t, 0] - dx * train_u[t, 1]) <= hy
+                ):
+                    count += 1
+                    last = h
+                    break
+        covered[q] = count / len(samples)
+    return overlapping, covered
+
+
+def cover_samples(window: Range) -> np.ndarray:
+    """(COVER_POINTS, 2) points of the Fibonacci lattice spread over the window, about its centre, in bands
+    across it so that consecutive points lie near each other (the kernel tries first the training window
+    that covered the point before)."""
+    i = np.arange(COVER_POINTS)
+    u = (i + 0.5) / COVER_POINTS
+    v = ((i * COVER_STEP) % COVER_POINTS + 0.5) / COVER_POINTS
+    bands = round(math.sqrt(COVER_POINTS))
+    band = np.floor(v * bands).astype(np.int64)
+    order = np.lexsort((np.where(band % 2 == 0, u, -u), band))  # back and forth
+    width, length = window.x_max - window.x_min, window.y_max - window.y_min
+    return np.stack([(u[order] - 0.5) * width, (v[order] - 0.5) * length], axis=1)
+
+
+def window_overlap(
+    query_xy: np.ndarray, query_yaw: np.ndarray, train_xy: np.ndarray, train_yaw: np.ndarray, window: Range
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per query frame: whether its window intersects any training frame's window (exact), and the share
+    of its area that they cover (at the points of cover_samples). Candidates: the training frames whose
+    window centre lies within `reach` (a KD-tree); the exact test runs on those alone."""
+    if not len(query_xy) or not len(train_xy):
+        return np.zeros(len(query_xy), dtype=bool), np.zeros(len(query_xy))
+    query_c = np.ascontiguousarray(window_centres(query_xy, query_yaw, window), dtype=np.float64)
+    train_c = np.ascontiguousarray(window_centres(train_xy, train_yaw, window), dtype=np.float64)
+    near = cKDTree(train_c).query_ball_point(query_c, np.nextafter(reach(window), np.inf))
+    lengths = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
+    starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    candidates = np.fromiter((t for ts in near for t in ts), dtype=np.int64, count=int(starts[-1]))
+    hx, hy = (window.x_max - window.x_min) / 2, (window.y_max - window.y_min) / 2
+    return _overlap_cover(query_c, unit(query_yaw), train_c, unit(train_yaw), starts, candidates,
+                          float(hx), float(hy), cover_samples(window))  # fmt: skip
+
+
+def unit(yaw: np.ndarray) -> np.ndarray:
+    """(N, 2) float64 unit vectors at the angles yaw."""
+    yaw = np.asarray(yaw, dtype=np.float64)
+    return np.ascontiguousarray(np.stack([np.cos(yaw), np.sin(yaw)], axis=1))
+
+
+def _share(values: np.ndarray) -> float:
+    return round(float(np.mean(values)), 4) if len(values) else 0.0
+
+
+def _shares(distance: np.ndarray, overlapping: np.ndarray, covered: np.ndarray, range_m: float) -> dict:
+    """frames, within_5m, within_range and median_m (over the finite distances; None without any), and the
+    share of the windows that overlap a training window and the mean share of a window covered."""
+    finite = distance[np.isfinite(distance)]
     return {
-        "frames": int(len(distances)),
-        "within_5m": round(float(np.mean(distances <= NEAR_M)), 4) if len(distances) else 0.0,
-        "within_range": round(float(np.mean(distances <= range_m)), 4) if len(distances) else 0.0,
+        "frames": int(len(distance)),
+        "within_5m": _share(distance <= NEAR_M),
+        "within_range": _share(distance <= range_m),
         "median_m": round(float(np.median(finite)), 2) if len(finite) else None,
+        "overlapping": _share(overlapping),
+        "covered": _share(covered),
     }
 
 
-def measure(splits: Sequence[str], cities: Sequence[str], xy: np.ndarray, range_m: float) -> dict:
-    """For each frame of each non-training split, the distance from its position (xy: (N, 2) world x, y
-    in metres) to the nearest training frame's in the same city; per split and per city of it: frames,
-    the shares within 5 m and within range_m, and the median distance. A city without a training frame
-    gives infinite distances (shares 0, median None, "no_training_frames_in_city": true)."""
+def measure(
+    splits: Sequence[str | None], cities: Sequence[str | None], xy: np.ndarray, yaw: np.ndarray, window: Range
+) -> dict:
+    """For each frame of each non-training split, against the training frames of the same city: the
+    distance from its position (xy: (N, 2) world x, y in metres) to the nearest one's, whether its window
+    (`window` placed at its position, turned by its yaw: the angle of its BEV x axis in the world, radians)
+    intersects one's window, and the share of its window's area that theirs cover. Per split and per city
+    of it: frames, the shares within 5 m and within half the window's longer side (`range_m`), the median
+    distance, `overlapping` (the share of frames whose window intersects a training window) and `covered`
+    (the mean covered share). A city without a training frame gives infinite distances and no overlap
+    (median None, "no_training_frames_in_city": true)."""
     names = np.array([UNKNOWN if s is None else str(s) for s in splits], dtype=object)
     places = np.array([UNKNOWN if c is None else str(c) for c in cities], dtype=object)
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    if not len(names) == len(places) == len(xy):
-        raise ValueError(f"{len(names)} splits, {len(places)} cities and {len(xy)} positions: not one each")
-    if not (math.isfinite(range_m) and range_m > 0):
-        raise ValueError(f"range_m must be a positive number of metres, not {range_m}")
+    yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
+    if not len(names) == len(places) == len(xy) == len(yaw):
+        raise ValueError(
+            f"{len(names)} splits, {len(places)} cities, {len(xy)} positions and {len(yaw)} headings: "
+            "not one each"
+        )
     if not np.isfinite(xy).all():
         raise ValueError(f"{int((~np.isfinite(xy).all(axis=1)).sum())} frame positions are not finite")
+    if not np.isfinite(yaw).all():
+        raise ValueError(f"{int((~np.isfinite(yaw)).sum())} frame headings are not finite")
+    sides = (window.x_max - window.x_min, window.y_max - window.y_min)
+    if not all(math.isfinite(side) and side > 0 for side in sides):
+        raise ValueError(f"the window must have positive, finite sides, not {sides[0]} x {sides[1]} m")
+    range_m = half_length(window)
+    head = {"range_m": float(range_m), "window": window.text, "cover_points": COVER_POINTS}
     split_names, split_of = np.unique(names.astype(str), return_inverse=True)
     training = np.array([is_training(s) for s in split_names], dtype=bool)
     train_splits = [str(s) for s, t in zip(split_names, training) if t]
     if not train_splits:
-        return {"train_splits": [], "range_m": float(range_m), "splits": {}, "note": NO_TRAINING_NOTE}
+        return {"train_splits": [], **head, "splits": {}, "note": NO_TRAINING_NOTE}
     is_train = training[split_of]
     city_names, city_of = np.unique(places.astype(str), return_inverse=True)
     distance = np.full(len(xy), np.inf)
+    overlapping = np.zeros(len(xy), dtype=bool)
+    covered = np.zeros(len(xy))
     untrained_cities = set()
     for c, city in enumerate(city_names):
         in_city = city_of == c
-        queries = in_city & ~is_train
-        if not queries.any():
+        queries, trains = np.flatnonzero(in_city & ~is_train), np.flatnonzero(in_city & is_train)
+        if not len(queries):
             continue
-        train_xy = xy[in_city & is_train]
-        if not len(train_xy):
+        if not len(trains):
             untrained_cities.add(str(city))
             continue
-        distance[queries] = cKDTree(train_xy).query(xy[queries], k=1)[0]
-    result = {"train_splits": train_splits, "range_m": float(range_m), "splits": {}}
+        distance[queries] = cKDTree(xy[trains]).query(xy[queries], k=1)[0]
+        overlapping[queries], covered[queries] = window_overlap(
+            xy[queries], yaw[queries], xy[trains], yaw[trains], window
+        )
+    result = {"train_splits": train_splits, **head, "splits": {}}
     for s, split in enumerate(split_names):
         if training[s]:
             continue
         members = split_of == s
-        entry = _shares(distance[members], range_m)
+        entry = _shares(distance[members], overlapping[members], covered[members], range_m)
         entry["cities"] = {}
         for c in np.unique(city_of[members]):
-            city = str(city_names[c])
-            entry["cities"][city] = _shares(distance[members & (city_of == c)], range_m)
+            city, here = str(city_names[c]), members & (city_of == c)
+            entry["cities"][city] = _shares(distance[here], overlapping[here], covered[here], range_m)
             if city in untrained_cities:
                 entry["cities"][city]["no_training_frames_in_city"] = True
         result["splits"][str(split)] = entry
     return result
 
 
-def frame_places(data: Path) -> tuple[list[str], list[str], np.ndarray]:
-    """(split, city, world x y) of every frame of a prepared dataset (its `frames` table)."""
-    table = io.read_table(Path(data), "frames", columns=["split", "city", "pose_translation"])
+def yaw_of(rotation_wxyz: np.ndarray) -> np.ndarray:
+    """(N,) the angle from the world x axis of the BEV x axis turned by each (w, x, y, z) quaternion
+    (frames.pose_rotation, BEV to world): the yaw of its projection on the ground."""
+    w, x, y, z = np.asarray(rotation_wxyz, dtype=np.float64).reshape(-1, 4).T
+    return np.arctan2(2 * (x * y + w * z), 1 - 2 * (y * y + z * z))
+
+
+def frame_places(data: Path) -> Places:
+    """Split, city, world x, y and yaw of every frame of a prepared dataset (its `frames` table)."""
+    columns = ["split", "city", "pose_translation", "pose_rotation"]
+    table = io.read_table(Path(data), "frames", columns=columns)
     poses = table.column("pose_translation").combine_chunks()
     offsets, values = io.numbers(poses.offsets), io.numbers(poses.values)
     short = np.flatnonzero(np.diff(offsets) < 2)
     if len(short):
         raise ValueError(f"{data}/frames: {len(short)} frames have no x, y in pose_translation")
     xy = np.stack([values[offsets[:-1]], values[offsets[:-1] + 1]], axis=1)
-    return table.column("split").to_pylist(), table.column("city").to_pylist(), xy
+    rotations = table.column("pose_rotation").combine_chunks()
+    offsets, values = io.numbers(rotations.offsets), io.numbers(rotations.values)
+    if len(wrong := np.flatnonzero(np.diff(offsets) != 4)):
+        raise ValueError(f"{data}/frames: {len(wrong)} frames have no (w, x, y, z) in pose_rotation")
+    yaw = yaw_of(values[offsets[0] : offsets[-1]])
+    return Places(table.column("split").to_pylist(), table.column("city").to_pylist(), xy, yaw)
 
 
-def read_and_measure(data: Path, range_m: float) -> dict:
-    """`measure` of a prepared dataset's frames (frame_places)."""
-    splits, cities, xy = frame_places(data)
-    return measure(splits, cities, xy, range_m)
+def read_and_measure(data: Path, window: Range) -> dict:
+    """`measure` of a prepared dataset's frames (frame_places) with the window it was cropped to."""
+    places = frame_places(data)
+    return measure(places.splits, places.cities, places.xy, places.yaw, window)
 
 
 def _metres(value: float) -> str:
@@ -110,7 +286,8 @@ def _frames(count: int) -> str:
 
 def leakage_line(leakage: dict | None, scheme: str | None) -> str:
     """One line for people: the split scheme, and per non-training split the share of its frames within
-    5 m and within the range of a training frame of the same city, and the median distance."""
+    5 m and within the range of a training frame of the same city, the median distance, and the share of
+    its windows that overlap a training window and how much of them those cover on average."""
     head = f"split scheme {scheme or UNKNOWN}"
     if leakage is None:
         return f"{head}; leakage not measured (prepared before leakage was recorded)"
@@ -128,6 +305,12 @@ def leakage_line(leakage: dict | None, scheme: str | None) -> str:
             f"frame (the same city), {within:.1f} % within {range_m} m, "
         )
         text += "median –" if entry.get("median_m") is None else f"median {entry['median_m']:.1f} m"
+        if "overlapping" in entry:  # measured since issue 59
+            window = f"{leakage['window']} m " if leakage.get("window") else ""
+            text += (
+                f", {100 * entry['overlapping']:.1f} % of the {window}windows overlap a training window, "
+                f"{100 * entry['covered']:.1f} % of their area covered on average"
+            )
         cities = (entry.get("cities") or {}).values()
         alone = sum(city["frames"] for city in cities if city.get("no_training_frames_in_city"))
         if alone:

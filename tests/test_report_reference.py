@@ -159,30 +159,77 @@ def test_the_data_file_names_its_source():
 # Which tables a dataset block gets, and how its data is named
 
 
-def test_the_range_and_split_tables_follow_the_manifest():
+def test_the_range_and_split_tables_follow_the_manifest(tmp_path):
     refs = load_reference()
 
     def placed(dataset: str, parameters: dict) -> list[tuple[str, set]]:
-        block = Block(dataset, None, "val", [], manifest={"parameters": parameters})
+        manifest = {"dataset": dataset, "parameters": parameters}
+        block = Block(dataset, None, "val", [], manifest=manifest)
         return [
             (table.label, {table.dataset(row) for row in rows})
             for table, rows in main_references(block, refs)
         ]
 
-    geographic = {"train": "train.txt", "val": "val.txt"}
     assert placed("nuscenes", {"bev_range": "30x60"}) == [("tab:modeling", {"nuscenes"})]
-    assert placed("av2", {"bev_range": "30x60"}) == [("tab:modeling", {"av2"})]
+    assert placed("av2", {"bev_range": "30x60", "split_scheme": "original"}) == [("tab:modeling", {"av2"})]
     assert placed("nuscenes", {"bev_range": "50x100"}) == [("tab:perception_range", {"nuscenes"})]
-    assert placed("nuscenes", {"bev_range": "30x60", "split_files": geographic}) == [
-        ("tab:newsplit", {"nuscenes"})
-    ]
-    assert placed("nuscenes", {"bev_range": "50x100", "split_files": geographic}) == [
-        ("tab:perception_range", {"nuscenes"}), ("tab:newsplit", {"nuscenes"})
-    ]  # fmt: skip
+    # the paper's tables are on the datasets' own splits: a geographic scheme's split stands beside none
+    geographic = {"split_scheme": "geographic", "geo_cell": 100.0, "geo_buffer": 30.0, "geo_seed": 0}
+    assert placed("nuscenes", {"bev_range": "30x60", **geographic}) == []
+    assert placed("nuscenes", {"bev_range": "50x100", **geographic}) == []
+    # nor do the user's own split files, which are not StreamMapNet's
+    for split, names in (("train", ["scene-0061", "scene-0553"]), ("val", ["scene-0655"])):
+        (tmp_path / f"{split}.txt").write_text("\n".join(names) + "\n")
+    named = {split: str(tmp_path / f"{split}.txt") for split in ("train", "val")}
+    files = {"split_scheme": "original", "split_files": named}
+    assert placed("nuscenes", {"bev_range": "30x60", **files}) == []
     # the paper's range and split tables are nuScenes only; another range or dataset has no table
     assert placed("av2", {"bev_range": "50x100"}) == []
     assert placed("nuscenes", {"bev_range": "20x40"}) == []
     assert placed("unknown", {"bev_range": "30x60"}) == []
+
+
+def test_streammapnets_split_files_are_told_by_their_names_and_get_tab_newsplit(tmp_path):
+    """StreamMapNet's files (../shared/data/splits) in any order, with comments and blank lines, are the
+    paper's new split; the same files less one name, or with train and val swapped, are the user's."""
+    from benchmark.report.runs import DataSplit, SplitKind
+
+    train, val = (require_split_file(f"nuscenes_geo_{split}.txt") for split in ("train", "val"))
+    names = train.read_text().split()
+    (tmp_path / "mine_train.txt").write_text("# StreamMapNet's\n\n" + "\n".join(reversed(names)) + "\n")
+    (tmp_path / "fewer_train.txt").write_text("\n".join(names[1:]) + "\n")
+
+    def split_of(dataset: str, files: dict[str, Path], bev_range: str = "30x60") -> DataSplit:
+        parameters = {"bev_range": bev_range, "split_scheme": "original",
+                      "split_files": {split: str(path) for split, path in files.items()}}  # fmt: skip
+        return DataSplit.of({"dataset": dataset, "parameters": parameters})
+
+    refs = load_reference()
+    for files in ({"train": train, "val": val}, {"train": tmp_path / "mine_train.txt", "val": val}):
+        data_split = split_of("nuscenes", files)
+        assert data_split.kind is SplitKind.STREAMMAPNET
+        block = Block("nuscenes", None, "val", [], manifest={"dataset": "nuscenes", "parameters": {
+            "bev_range": "30x60", "split_files": {s: str(p) for s, p in files.items()}}})  # fmt: skip
+        assert [(t.label, len(rows)) for t, rows in main_references(block, refs)] == [("tab:newsplit", 4)]
+    for files in ({"train": tmp_path / "fewer_train.txt", "val": val}, {"train": val, "val": train},
+                  {"train": train}):  # fmt: skip
+        data_split = split_of("nuscenes", files)
+        assert data_split.kind is SplitKind.SPLIT_FILES
+        assert data_split.describe().startswith("your split files (`--split-file` ")
+    assert split_of("nuscenes", {"train": train, "val": val}).describe() == (
+        "StreamMapNet's geographically disjoint split (`--split-file` train=nuscenes_geo_train.txt, "
+        "val=nuscenes_geo_val.txt)"
+    )
+    # files gone since `cli prepare`: whose they were is unknown, so they are the user's
+    gone = split_of("nuscenes", {"train": tmp_path / "gone_train.txt", "val": val})
+    assert gone.kind is SplitKind.SPLIT_FILES and "gone_train.txt not found" in gone.describe()
+
+
+def require_split_file(name: str) -> Path:
+    path = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "splits" / name
+    if not path.is_file():
+        pytest.skip(f"StreamMapNet's split file is not at {path} (../shared/data/splits beside the repo)")
+    return path
 
 
 def test_synthetic_data_is_told_by_the_synth_marker_above_the_raw_root(tmp_path):
@@ -201,3 +248,110 @@ def test_synthetic_data_is_told_by_the_synth_marker_above_the_raw_root(tmp_path)
     assert is_synthetic({"root": str(tmp_path / "other" / "data")}) is False
     assert is_synthetic({"root": str(tmp_path / "gone")}) is None
     assert is_synthetic({}) is None
+
+
+# ---------------------------------------------------------------------------------------------------
+# Which split a block's data is on, end to end: runs scored by `cli score --out` (no training) on
+# synthetic data prepared on its own split, by the geographic scheme, from the user's split files and
+# from StreamMapNet's
+
+
+def val_graphs_run(data: Path, run: Path) -> None:
+    """A run folder of `cli score --out`: the val frames' ground truth, each frame's last edge dropped."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from benchmark.graph_table import graphs_from_table, read_graph_table
+    from benchmark.score import score
+    from pipeline import io
+
+    frames = io.read_table(data, "frames", columns=["frame_id", "split"]).to_pylist()
+    val = {frame["frame_id"] for frame in frames if frame["split"] == "val"}
+    gt = graphs_from_table(read_graph_table(data), data)
+    rows = [{"frame_id": f, "x": g.x.tolist(), "y": g.y.tolist(), "src": g.src[:-1].tolist(),
+             "dst": g.dst[:-1].tolist()} for f, g in sorted(gt.items()) if f in val]  # fmt: skip
+    predictions = data.parent / f"{run.name}_predictions.parquet"
+    pq.write_table(pa.Table.from_pylist(rows, io.SCHEMAS["graphs"]), predictions)
+    score(predictions, data, out=run, split="val")
+
+
+@pytest.fixture(scope="module")
+def split_report(synth_raw, tmp_path_factory) -> dict:
+    from benchmark.report.writer import write_report
+    from pipeline.prepare import prepare
+    from pipeline.synth import synth
+    from pipeline.targets import TargetOptions
+
+    root = tmp_path_factory.mktemp("split_report")
+    av2 = synth_raw / "av2" / "sensor"
+    logs = {split: sorted(p.name for p in (av2 / split).iterdir()) for split in ("train", "val")}
+    for split, names in logs.items():
+        (root / f"my_{split}.txt").write_text("\n".join(names) + "\n")
+    datas = {"own": root / "own", "geo": root / "geo", "files": root / "files"}
+    prepare("av2", av2, datas["own"], TargetOptions())
+    prepare("av2", av2, datas["geo"], TargetOptions(), split_scheme="geographic", geo_cell=50.0, geo_seed=3)
+    prepare("av2", av2, datas["files"], TargetOptions(),
+            split_files={split: root / f"my_{split}.txt" for split in ("train", "val")})  # fmt: skip
+    splits = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "splits"
+    if (splits / "nuscenes_geo_train.txt").is_file():
+        # synth's scenes are v1.0-mini's; of its first five training scenes StreamMapNet's files put
+        # scene-0757 and scene-0796 in val
+        synth(root / "raw", logs=6, frames_per_log=2, frame_period=1.0, worlds=1, val_frames_per_log=2)
+        datas["streammapnet"] = root / "streammapnet"
+        theirs = {split: splits / f"nuscenes_geo_{split}.txt" for split in ("train", "val")}
+        prepare("nuscenes", root / "raw" / "nuscenes", datas["streammapnet"], TargetOptions(),
+                version="v1.0-mini", split_files=theirs)  # fmt: skip
+    for name, data in datas.items():
+        val_graphs_run(data, root / "runs" / name)
+    report = write_report([root / "runs"], root / "report", reference="paper", draws=0)
+    return {"report": report, "text": report.path.read_text()}
+
+
+def block_of(split_report: dict, run: str) -> tuple[str, list]:
+    """The report.md section of the block that holds `run` (from its `## ` heading to the next), and the
+    paper's tables shown beside it (Report.references)."""
+    text, report = split_report["text"], split_report["report"]
+    (index,) = [i for i, block in enumerate(report.blocks) if [r.name for r in block.runs] == [run]]
+    sections = re.split(r"^(?=## )", text, flags=re.M)
+    (part,) = [s for s in sections if s.startswith(f"## {report.blocks[index].title}\n")]
+    return part, report.references[index]
+
+
+def test_a_geographic_split_never_stands_beside_the_papers_rows(split_report):
+    own, own_references = block_of(split_report, "own")
+    assert "#### Reference: the paper's Tab. 1" in own and "paper `tab:modeling`" in own  # the contrast
+    assert [title for title, _, _ in own_references][0].startswith("Reference (paper, 24 epochs")
+    geo, geo_references = block_of(split_report, "geo")
+    assert geo_references == [] and "#### Reference" not in geo and "paper `" not in geo
+    heading = geo.splitlines()[0]
+    assert ", val split of the geographic scheme (`--split-scheme geographic`, 50 m cells, 30 m buffer, " \
+           "seed 3), " in heading  # fmt: skip
+    assert "the paper measured no model on a split made so, so none of its rows stand beside" in geo
+    assert "the paper's rows are context" not in geo  # the synthetic data's note is of rows not shown
+    # its own section: after every block on a dataset's own split, in the summary by name
+    titles = [block.title for block in split_report["report"].blocks]
+    assert titles.index(heading[3:]) > titles.index(own.splitlines()[0][3:])
+    summary = split_report["text"].split("\n\n")[1]
+    assert "On synthetic av2 (val split of the geographic scheme) the one scored run, geo " in summary
+
+
+def test_split_files_are_labelled_as_the_users_not_as_geographic(split_report):
+    files, references = block_of(split_report, "files")
+    heading = files.splitlines()[0]
+    assert ", val split of your split files (`--split-file` train=my_train.txt, val=my_val.txt), " in heading
+    assert "geographic" not in files.replace("geographically", "")
+    assert references == [] and "#### Reference" not in files and "paper `" not in files
+    assert "the paper has no table on them" in files
+
+
+def test_streammapnets_split_stands_beside_tab_newsplit_alone(split_report):
+    if "streammapnet" not in [run.name for block in split_report["report"].blocks for run in block.runs]:
+        pytest.skip("StreamMapNet's split files are not in ../shared/data/splits")
+    part, references = block_of(split_report, "streammapnet")
+    assert "val split of StreamMapNet's geographically disjoint split (`--split-file` " \
+           "train=nuscenes_geo_train.txt, val=nuscenes_geo_val.txt)" in part.splitlines()[0]  # fmt: skip
+    assert re.findall(r"paper `(tab:\w+)`", part) == ["tab:newsplit"] * 4
+    assert [title for title, _, _ in references] == [
+        "Reference (paper, the recipe of tab:modeling): the paper's the four modelings on a geographic split "
+        "of nuScenes (`tab:newsplit`), on nuScenes, camera input, 30 x 60 m range"
+    ]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from benchmark.report.measured_tables import FIELD_NAMES, METRICS, MODES, SHORT, STATS, markdown_table
 from benchmark.report.reference import SCORE_KEYS, ReferenceTable
-from benchmark.report.runs import Block, percent
+from benchmark.report.runs import Block, SplitKind, percent
 
 REFERENCE_NOTE = (
     "Tables headed *Reference* hold the paper's published numbers (benchmark/report/paper_reference.toml, "
@@ -30,8 +30,16 @@ REFERENCE_PLACES = {
     "tab:modeling": "under a dataset block of nuScenes or AV2 at 30 x 60 m on its own split",
     "tab:iou": "beside the mIoU table of a nuScenes or AV2 block at 30 x 60 m on its own split",
     "tab:postproc": "beside the post-processing accuracy of `--roundtrip` results",
-    "tab:perception_range": "under a dataset block prepared at 50 x 100 m",
-    "tab:newsplit": "under a dataset block prepared with `--split-file` (a geographic split)",
+    "tab:perception_range": "under a dataset block of nuScenes prepared at 50 x 100 m on its own split",
+    "tab:newsplit": "under a dataset block of nuScenes at 30 x 60 m prepared with StreamMapNet's split files "
+    "(`--split-file train=... --split-file val=...`)",
+}
+# why a block whose data is not on the dataset's own split has no paper table beside it, by its split
+OTHER_SPLIT_NOTES = {
+    SplitKind.GEOGRAPHIC: "the paper measured no model on a split made so, so none of its rows stand beside "
+    "this block (its tables are on the datasets' own splits, `tab:newsplit` on StreamMapNet's).",
+    SplitKind.SPLIT_FILES: "they are not StreamMapNet's split (the paper's `tab:newsplit`) and the paper "
+    "has no table on them, so none of its rows stand beside this block.",
 }
 REFERENCE_LEADS = (("method", "method"), ("modeling", "modeling"), ("via", "representation"),
                    ("modality", "modality"))  # fmt: skip
@@ -82,14 +90,34 @@ def console_reference(
 
 
 def main_references(block: Block, refs: dict[str, ReferenceTable]) -> list[tuple[ReferenceTable, list[dict]]]:
-    """The paper's tables that match a block's main table: Tab. 1 at its 30 x 60 m range on the
-    dataset's own split, the 50 x 100 m table, the geographic split's table; only rows of its dataset."""
-    bev_range, geographic = block.parameters.get("bev_range"), bool(block.parameters.get("split_files"))
-    labels = ["tab:perception_range"] if bev_range == "50x100" else []
-    labels += ["tab:newsplit"] if geographic else []
-    labels += ["tab:modeling"] if bev_range == "30x60" and not geographic else []
+    """The paper's tables that match a block's main table, only rows of its dataset: on the dataset's own
+    split, Tab. 1 at its 30 x 60 m range or the 50 x 100 m table; on StreamMapNet's split, its table at
+    30 x 60 m; on any other split (the geographic scheme's, the user's split files) none."""
+    bev_range, kind = block.parameters.get("bev_range"), block.data_split.kind
+    labels = []
+    if kind is SplitKind.ORIGINAL:
+        labels = ["tab:perception_range"] if bev_range == "50x100" else []
+        labels += ["tab:modeling"] if bev_range == "30x60" else []
+    elif kind is SplitKind.STREAMMAPNET and bev_range == "30x60":
+        labels = ["tab:newsplit"]
     found = [(refs[label], refs[label].rows_of(block.dataset)) for label in labels if label in refs]
     return [(table, rows) for table, rows in found if rows]
+
+
+def ablation_references(block: Block, refs: dict[str, ReferenceTable], name: str) -> list[ReferenceTable]:
+    """The paper's ablations of config field `name` (each on a dataset's own split), for a block whose
+    data is on its own split; none for another split."""
+    if block.data_split.kind is not SplitKind.ORIGINAL:
+        return []
+    return [table for table in refs.values() if table.field == name]
+
+
+def split_note(block: Block) -> str | None:
+    """Why no paper table stands beside a block whose data is not on the dataset's own split (None for
+    the dataset's own split and StreamMapNet's)."""
+    data_split = block.data_split
+    why = OTHER_SPLIT_NOTES.get(data_split.kind)
+    return None if why is None else f"This data is split by {data_split.describe()}: {why}"
 
 
 def unplaced_references(refs: dict[str, ReferenceTable], placed: set[str]) -> list[str]:

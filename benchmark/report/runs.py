@@ -1,5 +1,6 @@
 """The runs `cli report` reads: run folders (metrics.json, config.json, run.json, log.jsonl, val.jsonl and
-frame_counts.parquet) as typed rows (Run), grouped in blocks of one prepared dataset and split (Block).
+frame_counts.parquet) as typed rows (Run), grouped in blocks of one prepared dataset and split (Block), each
+with the split its data was prepared on (DataSplit, read from the data's manifest.json).
 
 A missing or unusable file becomes a reason why a run has no scores, never an exception; a run's per-frame
 counts are checked against its metrics.json before they give intervals. Paths are shown relative to the
@@ -8,9 +9,12 @@ working directory (`shown`).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import dataclass, field
+from enum import Enum
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +28,82 @@ MEASURED = ("params", "fps_net", "fps")  # null only in an external run's metric
 # an external run (`cli score --out RUN_DIR`: another codebase's result file, metrics.json's "external")
 EXTERNAL_NAMES = {"maptrv2": "MapTRv2 / LaneGAP JSON", "cgnet": "CGNet JSON", "graph": "graph table"}
 VALIDATION_FILE = "val.jsonl"
+# StreamMapNet's geographically disjoint splits (Yuan et al., WACV 2024), the paper's new split: sha256 of
+# each file's names, sorted and joined by newlines (`split_names_digest`), so that a copy in another order
+# or with comments is told as theirs; from nusc_split.py and av2_{train,val}_split.txt of their repository
+STREAMMAPNET_SPLITS = {
+    "nuscenes": {"train": "65debcbfbdd34790cb94124df5d4e4c84740c77fee4c7db01d90dcf206f0f604",
+                 "val": "e78fa0fa52cd1f26dd6924d83d276d46c90c8b79ca4ee8dd4f1624e7ba61421a"},
+    "av2": {"train": "d8082f9cc2bd861da8307eedda002db5e4919e513578625defe62c0fd1ca993b",
+            "val": "0f77c8be5baf5349a2521bda1e0926f7ff538b888838b9663e9bf9a514bcf681"},
+}  # fmt: skip
+
+
+class SplitKind(Enum):
+    """Which split a prepared dataset's frames are in (`cli prepare`), in the order the report shows
+    blocks: the paper's tables beside a block depend on it (benchmark/report/paper_tables.py)."""
+
+    ORIGINAL = "the dataset's own split"
+    STREAMMAPNET = "StreamMapNet's geographically disjoint split"  # the paper's new split (tab:newsplit)
+    GEOGRAPHIC = "the geographic scheme"  # --split-scheme geographic
+    SPLIT_FILES = "your split files"  # --split-file naming other splits than StreamMapNet's
+    UNKNOWN = "an unknown split"  # the data (its manifest.json) is not found
+
+
+@dataclass(frozen=True)
+class DataSplit:
+    """The split a prepared dataset was made with, as its manifest.json records it: the kind, the split
+    files (split -> file, as `cli prepare` resolved them) and the geographic scheme's cell, buffer, seed."""
+
+    kind: SplitKind
+    files: dict[str, Path] = field(default_factory=dict)
+    missing: tuple[str, ...] = ()  # names of split files gone since `cli prepare` (so whose is unknown)
+    geographic: tuple[float, float, int] | None = None  # cell and buffer in metres, seed
+
+    @classmethod
+    def of(cls, manifest: dict) -> DataSplit:
+        """Read from a manifest (`cli prepare`'s parameters); {} (data not found) gives UNKNOWN. A manifest
+        written before the split scheme was recorded is on the original scheme, as `cli prepare` reads it."""
+        if not manifest:
+            return cls(SplitKind.UNKNOWN)
+        parameters = manifest.get("parameters", {})
+        if parameters.get("split_scheme", "original") == "geographic":
+            scheme = (parameters.get("geo_cell"), parameters.get("geo_buffer"), parameters.get("geo_seed"))
+            return cls(SplitKind.GEOGRAPHIC, geographic=scheme)
+        files = {split: Path(path) for split, path in (parameters.get("split_files") or {}).items()}
+        if not files:
+            return cls(SplitKind.ORIGINAL)
+        missing = tuple(path.name for path in files.values() if not path.is_file())
+        theirs = STREAMMAPNET_SPLITS.get(manifest.get("dataset"), {})
+        if not missing and files.keys() == theirs.keys():
+            if all(split_names_digest(path) == theirs[split] for split, path in files.items()):
+                return cls(SplitKind.STREAMMAPNET, files)
+        return cls(SplitKind.SPLIT_FILES, files, missing)
+
+    def describe(self) -> str:
+        """The split in words, with the option that made it: "the geographic scheme (`--split-scheme
+        geographic`, 100 m cells, 30 m buffer, seed 0)", "your split files (`--split-file` train=a.txt)"."""
+        if self.kind is SplitKind.GEOGRAPHIC:
+            cell, buffer, seed = self.geographic
+            return (f"{self.kind.value} (`--split-scheme geographic`, {metres(cell)} cells, "
+                    f"{metres(buffer)} buffer, seed {seed if seed is not None else '?'})")  # fmt: skip
+        if self.files:
+            named = ", ".join(f"{split}={path.name}" for split, path in self.files.items())
+            gone = f"; {', '.join(self.missing)} not found" if self.missing else ""
+            return f"{self.kind.value} (`--split-file` {named}{gone})"
+        return self.kind.value
+
+
+def metres(value: float | None) -> str:
+    return "? m" if value is None else f"{value:g} m"
+
+
+def split_names_digest(path: Path) -> str:
+    """sha256 of the names a split file holds (blank lines and # comments left out, as `cli prepare` reads
+    them), sorted and joined by newlines."""
+    lines = (line.strip() for line in Path(path).read_text().splitlines())
+    names = sorted({line for line in lines if line and not line.startswith("#")})
+    return hashlib.sha256("\n".join(names).encode()).hexdigest()
 
 
 @dataclass
@@ -115,6 +195,16 @@ class Block:
         return self.manifest.get("parameters", {})
 
     @property
+    def key(self) -> tuple[str, str, str]:
+        return self.dataset, str(self.data or ""), self.split or ""
+
+    @cached_property
+    def data_split(self) -> DataSplit:
+        """The split its data was prepared on (read once its manifest is): where the report shows the
+        block, and the paper's tables beside it."""
+        return DataSplit.of(self.manifest)
+
+    @property
     def scored(self) -> list[Run]:
         return [run for run in self.runs if run.scored]
 
@@ -132,7 +222,14 @@ class Block:
             if fewer:
                 frames += " (" + "; ".join(f"{run.name}: {run.metrics['frames']}" for run in fewer) + ")"
         data = shown(self.data) if self.data else "data not found"
-        return f"{self.name}: `{data}`, {self.split or '?'} split{frames}"
+        return f"{self.name}: `{data}`, {self.split_words}{frames}"
+
+    @property
+    def split_words(self) -> str:
+        """The block's split in words: "val split", or "val split of the geographic scheme (...)" where the
+        data is not on the dataset's own split."""
+        of = self.data_split.kind not in (SplitKind.ORIGINAL, SplitKind.UNKNOWN)
+        return f"{self.split or '?'} split" + (f" of {self.data_split.describe()}" if of else "")
 
 
 def shown(path: Path | str) -> str:
@@ -293,17 +390,19 @@ def load_runs(paths: list[Path]) -> list[Run]:
 
 
 def group_blocks(runs: list[Run]) -> list[Block]:
-    """One block per (dataset, data folder, split); each block's runs must share the metric parameters."""
+    """One block per (dataset, data folder, split); each block's runs must share the metric parameters.
+    Blocks on the datasets' own splits come first, then those of each other split (SplitKind's order)."""
     blocks: dict[tuple, Block] = {}
     for run in runs:
-        key = (run.dataset, str(run.data or ""), run.split or "")
+        key = (run.dataset, str(run.data or ""), run.split or "")  # Block.key
         blocks.setdefault(key, Block(run.dataset, run.data, run.split, [])).runs.append(run)
     for block in blocks.values():
         check_metric_params(block.scored)
         if block.data is not None:
             block.manifest = read_json(block.data / "manifest.json")
             block.synthetic = is_synthetic(block.manifest)
-    return [blocks[key] for key in sorted(blocks)]
+    kinds = list(SplitKind)
+    return sorted(blocks.values(), key=lambda block: (kinds.index(block.data_split.kind), block.key))
 
 
 def check_metric_params(runs: list[Run]) -> None:

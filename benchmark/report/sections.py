@@ -40,9 +40,11 @@ from benchmark.report.paper_tables import (
     REFERENCE_NOTE,
     SYNTHETIC_NOTE,
     UNKNOWN_ORIGIN_NOTE,
+    ablation_references,
     console_reference,
     main_references,
     reference_section,
+    split_note,
     unplaced_references,
 )
 from benchmark.report.reference import ReferenceTable
@@ -144,14 +146,17 @@ def main_section(block: Block, beside: list[tuple[ReferenceTable, list[dict]]], 
     # the data's split scheme and how near its evaluated frames lie to a training frame (`cli prepare`)
     md += [leakage_line(block.manifest.get("leakage"), block.parameters.get("split_scheme")), ""]
     doc.shown_references.append([])
-    if refs:
+    note = split_note(block) if refs else None  # on another split than the paper's: no paper rows
+    if refs and note:
+        md += [note, ""]
+    elif refs:
         if block.synthetic:
             md += [SYNTHETIC_NOTE, ""]
         elif block.synthetic is None:
             md += [UNKNOWN_ORIGIN_NOTE, ""]
         if not beside:
             where = f"{block.dataset} at range {block.parameters.get('bev_range', '?')}"
-            where += ", prepared with --split-file" if block.parameters.get("split_files") else ""
+            where += f", {block.data_split.describe()}" if block.data_split.files else ""
             md += [f"No table of the paper matches this block ({where}).", ""]
     for table, rows in beside:
         md += reference_section(table, rows, block.dataset)
@@ -186,10 +191,9 @@ def ablation_sections(block: Block, doc: Sections) -> list[str]:
         md += [f"### Ablation: {FIELD_NAMES.get(name, name)} (`{name}`)", ""]
         md += ["Runs whose saved configs differ in this field alone.", ""]
         md += [markdown_table(*ablation_table(name, members)), ""]
-        for table in doc.refs.values():
-            if table.field == name:
-                md += reference_section(table, table.rows)
-                doc.placed.add(table.label)
+        for table in ablation_references(block, doc.refs, name):
+            md += reference_section(table, table.rows)
+            doc.placed.add(table.label)
     return md
 
 

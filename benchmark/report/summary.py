@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from benchmark.metric import bootstrap
 from benchmark.report.measured_tables import F1_COLUMNS
-from benchmark.report.runs import Block, Run, percent
+from benchmark.report.runs import Block, Run, SplitKind, percent
 
 
 def paired_difference(first: Run, second: Run, draws: int) -> dict | str:
@@ -25,13 +25,20 @@ def paired_difference(first: Run, second: Run, draws: int) -> dict | str:
     return bootstrap.paired(first.counts, second.counts, draws)
 
 
+def summary_split(block: Block) -> str:
+    """A block's split as the summary names it: "val split", "val split of the geographic scheme"."""
+    kind = block.data_split.kind
+    of = f" of {kind.value}" if kind not in (SplitKind.ORIGINAL, SplitKind.UNKNOWN) else ""
+    return f"{block.split or '?'} split{of}"
+
+
 def summary(blocks: list[Block], draws: int = bootstrap.DRAWS) -> str:
     """One paragraph in words, generated from the numbers. A run "leads" only where the paired interval
     of its difference to the next run excludes 0; where it holds 0 the two are "level"."""
     sentences = []
     for block in blocks:
         synthetic = "synthetic " if block.synthetic else ""
-        scored, where = block.scored, f"On {synthetic}{block.dataset} ({block.split or '?'} split)"
+        scored, where = block.scored, f"On {synthetic}{block.dataset} ({summary_split(block)})"
         unscored = [run.name for run in block.runs if not run.scored]
         if not scored:
             sentences.append(

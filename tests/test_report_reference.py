@@ -220,6 +220,14 @@ def test_streammapnets_split_files_are_told_by_their_names_and_get_tab_newsplit(
         "StreamMapNet's geographically disjoint split (`--split-file` train=nuscenes_geo_train.txt, "
         "val=nuscenes_geo_val.txt)"
     )
+    # StreamMapNet's AV2 files are theirs too (the paper's tab:newsplit has nuScenes rows alone), but not
+    # for nuScenes data; at 50 x 100 m the paper has no table on their split
+    av2 = {split: require_split_file(f"av2_geo_{split}.txt") for split in ("train", "val")}
+    assert split_of("av2", av2).kind is SplitKind.STREAMMAPNET
+    assert split_of("nuscenes", av2).kind is SplitKind.SPLIT_FILES
+    wide = Block("nuscenes", None, "val", [], manifest={"dataset": "nuscenes", "parameters": {
+        "bev_range": "50x100", "split_files": {"train": str(train), "val": str(val)}}})  # fmt: skip
+    assert wide.data_split.kind is SplitKind.STREAMMAPNET and main_references(wide, refs) == []
     # files gone since `cli prepare`: whose they were is unknown, so they are the user's
     gone = split_of("nuscenes", {"train": tmp_path / "gone_train.txt", "val": val})
     assert gone.kind is SplitKind.SPLIT_FILES and "gone_train.txt not found" in gone.describe()
@@ -304,7 +312,8 @@ def split_report(synth_raw, tmp_path_factory) -> dict:
     for name, data in datas.items():
         val_graphs_run(data, root / "runs" / name)
     report = write_report([root / "runs"], root / "report", reference="paper", draws=0)
-    return {"report": report, "text": report.path.read_text()}
+    geo_buffer = json.loads((datas["geo"] / "manifest.json").read_text())["parameters"]["geo_buffer"]
+    return {"report": report, "text": report.path.read_text(), "geo_buffer": geo_buffer}
 
 
 def block_of(split_report: dict, run: str) -> tuple[str, list]:
@@ -323,9 +332,9 @@ def test_a_geographic_split_never_stands_beside_the_papers_rows(split_report):
     assert [title for title, _, _ in own_references][0].startswith("Reference (paper, 24 epochs")
     geo, geo_references = block_of(split_report, "geo")
     assert geo_references == [] and "#### Reference" not in geo and "paper `" not in geo
-    heading = geo.splitlines()[0]
-    assert ", val split of the geographic scheme (`--split-scheme geographic`, 50 m cells, 30 m buffer, " \
-           "seed 3), " in heading  # fmt: skip
+    heading, buffer = geo.splitlines()[0], split_report["geo_buffer"]  # the window's diagonal, 67.08 m
+    assert f", val split of the geographic scheme (`--split-scheme geographic`, 50 m cells, {buffer:.1f} m " \
+           "buffer, seed 3), " in heading  # fmt: skip
     assert "the paper measured no model on a split made so, so none of its rows stand beside" in geo
     assert "the paper's rows are context" not in geo  # the synthetic data's note is of rows not shown
     # its own section: after every block on a dataset's own split, in the summary by name

@@ -95,7 +95,8 @@ class DataSplit:
 
 
 def metres(value: float | None) -> str:
-    return "? m" if value is None else f"{value:g} m"
+    """A length as a heading names it: "100 m", "67.1 m"."""
+    return "? m" if value is None else f"{round(value, 1):g} m"
 
 
 def split_names_digest(path: Path) -> str:

@@ -224,12 +224,15 @@ def prepare(
     ),
     split_scheme: Literal["original", "geographic"] = typer.Option(
         "original",
-        help="original: the dataset's splits (or --split-file's); geographic: by place, per city, so that no "
-        "val or test frame lies within --geo-buffer of a training frame",
+        help="original: the dataset's splits (or --split-file's); geographic: by place, per city, leaving "
+        "out the val and test frames within --geo-buffer of a training frame",
     ),
     geo_cell: float = typer.Option(100.0, callback=positive, help="geographic: cell size in metres (x>0)"),
     geo_buffer: float = typer.Option(
-        None, min=0, show_default="half the --range's length", help="geographic: metres kept between splits"
+        None,
+        min=0,
+        show_default="the --range's diagonal: no val or test window shares ground with a training window",
+        help="geographic: metres kept between val or test frames and training frames",
     ),
     geo_seed: int = typer.Option(0, min=0, help="geographic: the seed of the cells' assignment"),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
@@ -242,7 +245,7 @@ def prepare(
       cli prepare --dataset av2 --root data/av2/sensor --out prepared/geo --split-scheme geographic
       cli prepare --dataset nuscenes --root data/nuscenes --version v1.0-mini --out prepared/mini
     """
-    from benchmark.tables import finish, leakage_table, prepare_table
+    from benchmark.tables import finish, leakage_table, prepare_table, split_shares_table
     from pipeline.geometry import Range
     from pipeline.prepare import prepare as run_prepare
     from pipeline.splits.leakage import leakage_line
@@ -267,9 +270,12 @@ def prepare(
     wrote = [out, out / "splits.png"] + ([out / "errors.jsonl"] if summary["frames_skipped"] else [])
     tables = [(f"prepared {dataset} from {root}", prepare_table(summary))]
     leakage = summary["leakage"]
+    if "split_shares" in summary:
+        tables.append(("geographic split: shares of the kept frames (target)",
+                       split_shares_table(summary["split_shares"])))  # fmt: skip
     if leakage["splits"]:
-        tables.append(("leakage: distance of each frame to the nearest training frame of its city",
-                       leakage_table(leakage)))  # fmt: skip
+        tables.append(("leakage: each frame's distance to the nearest training frame of its city, and its "
+                       "window's overlap with theirs", leakage_table(leakage)))  # fmt: skip
     finish(summary, tables, wrote, as_json, [leakage_line(leakage, split_scheme)])
 
 

@@ -39,15 +39,33 @@ def prepare_table(summary: dict) -> Table:
 
 
 def leakage_table(leakage: dict) -> Table:
-    """Each non-training split's distance from its frames to the nearest training frame of the same city
+    """Each non-training split's distance from its frames to the nearest training frame of the same city,
+    the share of its windows that overlap a training window and the mean share of a window they cover
     (pipeline/splits/leakage.py), per split and city."""
     range_m = leakage["range_m"]
-    table = Table("split", "city", "frames", "within 5 m", f"within {range_m:g} m", "median m")
+    table = Table("split", "city", "frames", "within 5 m", f"within {range_m:g} m", "median m",
+                  "windows overlapping", "area covered")  # fmt: skip
     for split, row in leakage["splits"].items():
         for city, values in [("all", row), *row["cities"].items()]:
             median = "-" if values["median_m"] is None else f"{values['median_m']:.1f}"
-            table.add_row(split, city, str(values["frames"]), f"{100 * values['within_5m']:.1f} %",
-                          f"{100 * values['within_range']:.1f} %", median)  # fmt: skip
+            shares = [f"{100 * values[key]:.1f} %" for key in ("within_5m", "within_range")]
+            windows = [f"{100 * values[key]:.1f} %" for key in ("overlapping", "covered")]
+            table.add_row(split, city, str(values["frames"]), *shares, median, *windows)
+    return table
+
+
+def split_shares_table(shares: dict) -> Table:
+    """The geographic scheme's achieved shares (GeoSplit.achieved): per city and in all, the kept and
+    left-out frames and each split's share of the kept ones, the target beside the whole's."""
+    names = list(shares["targets"])
+    table = Table("city", "frames kept", "left out", *names)
+    cities = shares["cities"].values()
+    kept, left_out = sum(c["frames"] for c in cities), sum(c["left_out"] for c in cities)
+    whole = [f"{100 * shares['shares'][n]:.1f} % ({100 * shares['targets'][n]:.1f} %)" for n in names]
+    table.add_row("all", str(kept), str(left_out), *whole)
+    for city, values in shares["cities"].items():
+        table.add_row(city, str(values["frames"]), str(values["left_out"]),
+                      *(f"{100 * values['shares'][n]:.1f} %" for n in names))  # fmt: skip
     return table
 
 

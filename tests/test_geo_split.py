@@ -1,12 +1,28 @@
-"""Geographic splits (pipeline/splits/geographic.py): the buffer to training ground holds, the shares come
-near the original ones, the result is seeded and deterministic, cities stay apart, and the map is drawn."""
+"""Geographic splits (pipeline/splits/geographic.py): the buffer to training ground holds, and by default no
+val or test window shares ground with a training window whatever the headings; the shares come near the
+original ones and are recorded per city; a split left without a frame is refused in one line; the result is
+seeded and deterministic, cities stay apart, and the map is drawn."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
+import shapely
+from typer.testing import CliRunner
 
-from pipeline.splits.geographic import DPI, PANEL_INCHES, draw_split_map, geographic, hilbert_index
+from cli import app
+from pipeline.geometry import Range
+from pipeline.splits.geographic import (
+    DEFAULT_BUFFER_M,
+    DPI,
+    PANEL_INCHES,
+    draw_split_map,
+    geographic,
+    hilbert_index,
+)
+from pipeline.splits.leakage import measure, window_corners
 
 BUFFER_M = 30.0
 # Shares within 0.03 (absolute) of the targets: a city is cut into 27 groups (4 / 0.15), each ~3.7 % of its
@@ -169,3 +185,153 @@ def test_the_split_map_is_a_png_of_one_panel_per_city(city, tmp_path):
     assert imread(tmp_path / "original.png").shape == (2 * side, 3 * side, 4)
     with pytest.raises(ValueError, match="needs cell_m"):
         draw_split_map(cities, both, result.split, tmp_path / "x.png", cells=result.cells)
+
+
+def intersecting_pairs(xy: np.ndarray, yaw: np.ndarray, split: list, window: Range = Range()) -> int:
+    """Brute force, independent of leakage.py's test: the (val or test, training) pairs of frames whose
+    windows intersect (shapely's exact predicate on every pair whose bounding boxes meet)."""
+    windows = shapely.polygons(window_corners(xy, yaw, window))
+    split = np.array(split, dtype=object)
+    train = split == "train"
+    held_out = (split != "train") & (split != None)  # noqa: E711 (element-wise)
+    pairs = shapely.STRtree(windows[train]).query(windows[held_out], predicate="intersects")
+    return pairs.shape[1]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_by_default_no_val_or_test_window_shares_ground_with_a_training_window(city, seed):
+    xy, original = city
+    rng = np.random.default_rng(seed)
+    cities = ["A"] * len(xy)
+    yaw = rng.uniform(-np.pi, np.pi, len(xy))  # any heading at all: the buffer must not depend on them
+    result = geographic(cities, xy, original, seed=seed)
+    assert result.parameters["buffer_m"] == DEFAULT_BUFFER_M == pytest.approx(np.hypot(30.0, 60.0))
+    assert intersecting_pairs(xy, yaw, result.split) == 0
+    leakage = measure(result.split, cities, xy, yaw, Range())["splits"]
+    assert all(leakage[s]["overlapping"] == leakage[s]["covered"] == 0.0 for s in ("val", "test"))
+    # the worst headings for it: every kept val or test window turned so that its far corner points at the
+    # nearest training frame, and every training window's at the nearest val or test frame
+    split = np.array(result.split, dtype=object)
+    train, held_out = split == "train", (split != "train") & (split != None)  # noqa: E711
+    corner = np.arctan2(30.0, 15.0)  # of the corner (15, 30) from the window's x axis
+    for mine, theirs in ((held_out, train), (train, held_out)):
+        nearest = np.argmin(((xy[mine][:, None] - xy[theirs][None]) ** 2).sum(-1), axis=1)
+        towards = xy[theirs][nearest] - xy[mine]
+        yaw[mine] = np.arctan2(towards[:, 1], towards[:, 0]) - corner
+    assert intersecting_pairs(xy, yaw, result.split) == 0
+
+
+def test_the_old_30m_buffer_stays_reachable_and_its_windows_share_ground(city):
+    # the issue's case: no val or test frame within 30 m of a training frame, yet their windows overlap
+    xy, original = city
+    cities = ["A"] * len(xy)
+    yaw = np.random.default_rng(0).uniform(-np.pi, np.pi, len(xy))
+    result = geographic(cities, xy, original, buffer_m=30.0, seed=0)
+    assert result.parameters["buffer_m"] == 30.0
+    assert intersecting_pairs(xy, yaw, result.split) > 100
+    leakage = measure(result.split, cities, xy, yaw, Range())["splits"]
+    for name in ("val", "test"):
+        assert leakage[name]["within_range"] == 0.0 and leakage[name]["overlapping"] > 0.05
+    assert sum(result.left_out.values()) < sum(geographic(cities, xy, original, seed=0).left_out.values())
+
+
+def test_the_achieved_shares_are_recorded_per_split_and_city(city):
+    xy, original = city
+    both = np.concatenate([xy, xy[:2000] + 1e4])
+    cities = ["A"] * len(xy) + ["B"] * 2000
+    result = geographic(cities, both, np.concatenate([original, original[:2000]]), seed=0)
+    split = np.array(result.split, dtype=object)
+    achieved = result.achieved()
+    assert achieved["targets"] == result.parameters["targets"] and achieved["shares"] == result.shares
+    assert achieved["missing"] == {} and list(achieved["cities"]) == ["A", "B"]
+    for name, members in (("A", slice(0, len(xy))), ("B", slice(len(xy), None))):
+        mine = split[members]
+        kept = [s for s in mine if s is not None]
+        entry = achieved["cities"][name]
+        assert entry["frames"] == len(kept) and entry["left_out"] == len(mine) - len(kept)
+        assert entry["shares"] == {
+            s: pytest.approx(kept.count(s) / len(kept)) for s in ("train", "test", "val")
+        }
+    assert achieved["cities"]["A"]["shares"] != achieved["cities"]["B"]["shares"]
+    json.dumps(achieved)
+
+
+def test_a_split_left_without_a_frame_is_refused_in_one_line():
+    # two one-frame logs in two cities: each city one cell, all training ground; val would be empty
+    xy = np.array([[5.0, 5.0], [5.0, 5.0]])
+    with pytest.raises(ValueError) as error:
+        geographic(["PIT", "WDC"], xy, ["train", "val"])
+    assert str(error.value) == (
+        "split 'val' (1 frame in the dataset) gets no frame: the cities PIT (1 frame in 1 cell), WDC (1 "
+        "frame in 1 cell) have too few cells of --geo-cell 100 m to share out beyond the 67.08 m buffer to "
+        "training ground; try a smaller --geo-cell (or the original split scheme)"
+    )
+    # one city, two frames 40 m apart: one cell of 100 m, or two of 10 m whose val frame the buffer takes
+    pair = np.array([[1.0, 1.0], [41.0, 1.0]])
+    with pytest.raises(ValueError, match=r"split 'val' .* the cities A \(2 frames in 1 cell\)"):
+        geographic(["A", "A"], pair, ["train", "val"])
+    with pytest.raises(ValueError, match=r"A \(2 frames in 2 cells\) .* --geo-cell 10 m"):
+        geographic(["A", "A"], pair, ["train", "val"], cell_m=10.0)
+    kept = geographic(["A", "A"], pair, ["train", "val"], cell_m=10.0, buffer_m=30.0)  # the old buffer
+    assert sorted(kept.split) == ["train", "val"] and kept.shares == {"train": 0.5, "val": 0.5}
+
+
+@pytest.fixture(scope="module")
+def one_frame_logs(tmp_path_factory):
+    """A synthetic AV2 root of two one-frame logs, a training and a validation one, in two worlds."""
+    from pipeline.synth import synth
+
+    out = tmp_path_factory.mktemp("one_frame_logs")
+    synth(out, logs=2, frames_per_log=1, worlds=2, sensors=False, val_frames_per_log=1)
+    return out / "av2" / "sensor"
+
+
+def test_prepare_stops_before_any_shard_when_a_split_would_be_empty(one_frame_logs, tmp_path):
+    out = tmp_path / "geo"
+    result = CliRunner().invoke(app, ["prepare", "--dataset", "av2", "--root", str(one_frame_logs), "--out",
+                                      str(out), "--split-scheme", "geographic"])  # fmt: skip
+    assert result.exit_code == 1, result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "Traceback" not in result.output, result.output
+    assert "--split-scheme geographic: split 'val' (1 frame in the dataset) gets no frame" in errors[0]
+    assert all(
+        word in errors[0] for word in ("PIT (1 frame in 1 cell)", "WDC (1 frame in 1 cell)", "--geo-cell")
+    )
+    assert not out.exists()  # nothing written
+
+
+def test_prepare_records_the_achieved_shares_in_the_manifest_and_the_summary(
+    synth_raw, synth_prepared, tmp_path
+):
+    out = tmp_path / "geo"
+    args = ["prepare", "--dataset", "av2", "--root", str(synth_raw / "av2" / "sensor"), "--out", str(out),
+            "--split-scheme", "geographic", "--geo-cell", "50", "--geo-seed", "3"]  # fmt: skip
+    result = CliRunner().invoke(app, [*args, "--json"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["split_shares"] == summary["split_shares"] and "split_shares" not in manifest["last_run"]
+    shares = summary["split_shares"]
+    frames = _frames(out)
+    kept = {s: sum(f["split"] == s for f in frames) for s in ("train", "val")}
+    assert shares["shares"] == {s: pytest.approx(kept[s] / len(frames)) for s in kept}
+    assert shares["targets"] == {"train": 0.75, "val": 0.25}
+    (city,) = shares["cities"].values()
+    assert city["frames"] == len(frames) and city["shares"] == shares["shares"]
+    assert (
+        city["left_out"] == summary["frames_in_buffer"] == len(_frames(synth_prepared["av2"])) - len(frames)
+    )
+    row = manifest["leakage"]["splits"]["val"]
+    assert row["frames"] == kept["val"] > 0 and row["overlapping"] == row["covered"] == 0.0
+    table = CliRunner().invoke(app, [*args, "--overwrite"])
+    assert table.exit_code == 0, table.output
+    assert "geographic split: shares of the kept frames (target)" in table.output
+    assert (
+        "0.0 % of the 30x60 m windows overlap a training window, 0.0 % of their area covered" in table.output
+    )
+
+
+def _frames(data) -> list[dict]:
+    from pipeline.io import read_table
+
+    return read_table(data, "frames", columns=["split", "city"]).to_pylist()

@@ -3,6 +3,7 @@ when ../shared/paper is present, and read back from the reference tables the rep
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 from pathlib import Path
@@ -199,9 +200,11 @@ def test_streammapnets_split_files_are_told_by_their_names_and_get_tab_newsplit(
     (tmp_path / "mine_train.txt").write_text("# StreamMapNet's\n\n" + "\n".join(reversed(names)) + "\n")
     (tmp_path / "fewer_train.txt").write_text("\n".join(names[1:]) + "\n")
 
-    def split_of(dataset: str, files: dict[str, Path], bev_range: str = "30x60") -> DataSplit:
-        parameters = {"bev_range": bev_range, "split_scheme": "original",
+    def split_of(dataset: str, files: dict[str, Path], sha256: dict[str, str] | None = None) -> DataSplit:
+        parameters = {"bev_range": "30x60", "split_scheme": "original",
                       "split_files": {split: str(path) for split, path in files.items()}}  # fmt: skip
+        if sha256 is not None:  # as `cli prepare` records them since it refuses changed split files
+            parameters["split_file_sha256"] = sha256
         return DataSplit.of({"dataset": dataset, "parameters": parameters})
 
     refs = load_reference()
@@ -228,6 +231,18 @@ def test_streammapnets_split_files_are_told_by_their_names_and_get_tab_newsplit(
     wide = Block("nuscenes", None, "val", [], manifest={"dataset": "nuscenes", "parameters": {
         "bev_range": "50x100", "split_files": {"train": str(train), "val": str(val)}}})  # fmt: skip
     assert wide.data_split.kind is SplitKind.STREAMMAPNET and main_references(wide, refs) == []
+    # a file edited since `cli prepare` (its recorded sha256 differs): whose split the data is on is unknown
+    mine = {"train": tmp_path / "mine_train.txt", "val": val}
+    recorded = {split: hashlib.sha256(path.read_bytes()).hexdigest() for split, path in mine.items()}
+    assert split_of("nuscenes", mine, recorded).kind is SplitKind.STREAMMAPNET
+    # (even to the same names in another order: the file prepared from is not the one here)
+    (tmp_path / "mine_train.txt").write_text("\n".join(names) + "\n")
+    edited = split_of("nuscenes", mine, recorded)
+    assert edited.kind is SplitKind.SPLIT_FILES
+    assert edited.describe() == (
+        "your split files (`--split-file` train=mine_train.txt, val=nuscenes_geo_val.txt; mine_train.txt "
+        "changed since `cli prepare`)"
+    )
     # files gone since `cli prepare`: whose they were is unknown, so they are the user's
     gone = split_of("nuscenes", {"train": tmp_path / "gone_train.txt", "val": val})
     assert gone.kind is SplitKind.SPLIT_FILES and "gone_train.txt not found" in gone.describe()

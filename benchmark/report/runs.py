@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.metric import bootstrap
+from pipeline.splits.plan import split_file_digests
 
 METHOD_NAMES = {"lanegap": "LaneGAP", "maptr": "MapTR", "stsu": "STSU", "hdmapnet": "HDMapNet"}
 RUN_FILES = ("metrics.json", "config.json", "run.json", "checkpoint.pt", "log.jsonl", "predictions.parquet")
@@ -57,7 +58,9 @@ class DataSplit:
 
     kind: SplitKind
     files: dict[str, Path] = field(default_factory=dict)
-    missing: tuple[str, ...] = ()  # names of split files gone since `cli prepare` (so whose is unknown)
+    # the split files gone or changed since `cli prepare` (their sha256 in the manifest), in words: what
+    # the data was split by is then unknown beyond their names
+    unsure: tuple[str, ...] = ()
     geographic: tuple[float, float, int] | None = None  # cell and buffer in metres, seed
 
     @classmethod
@@ -73,12 +76,12 @@ class DataSplit:
         files = {split: Path(path) for split, path in (parameters.get("split_files") or {}).items()}
         if not files:
             return cls(SplitKind.ORIGINAL)
-        missing = tuple(path.name for path in files.values() if not path.is_file())
+        unsure = unsure_files(files, parameters.get("split_file_sha256") or {})
         theirs = STREAMMAPNET_SPLITS.get(manifest.get("dataset"), {})
-        if not missing and files.keys() == theirs.keys():
+        if not unsure and files.keys() == theirs.keys():
             if all(split_names_digest(path) == theirs[split] for split, path in files.items()):
                 return cls(SplitKind.STREAMMAPNET, files)
-        return cls(SplitKind.SPLIT_FILES, files, missing)
+        return cls(SplitKind.SPLIT_FILES, files, unsure)
 
     def describe(self) -> str:
         """The split in words, with the option that made it: "the geographic scheme (`--split-scheme
@@ -89,9 +92,21 @@ class DataSplit:
                     f"{metres(buffer)} buffer, seed {seed if seed is not None else '?'})")  # fmt: skip
         if self.files:
             named = ", ".join(f"{split}={path.name}" for split, path in self.files.items())
-            gone = f"; {', '.join(self.missing)} not found" if self.missing else ""
-            return f"{self.kind.value} (`--split-file` {named}{gone})"
+            unsure = f"; {', '.join(self.unsure)}" if self.unsure else ""
+            return f"{self.kind.value} (`--split-file` {named}{unsure})"
         return self.kind.value
+
+
+def unsure_files(files: dict[str, Path], recorded: dict[str, str]) -> tuple[str, ...]:
+    """The split files gone or changed since `cli prepare` recorded their sha256 (`recorded`, {split:
+    sha256}; a manifest from before has none, and its files are taken as they are), in words."""
+    unsure = []
+    for split, path in files.items():
+        if not path.is_file():
+            unsure.append(f"{path.name} not found")
+        elif split in recorded and split_file_digests({split: path})[split] != recorded[split]:
+            unsure.append(f"{path.name} changed since `cli prepare`")
+    return tuple(unsure)
 
 
 def metres(value: float | None) -> str:

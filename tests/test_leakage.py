@@ -249,3 +249,16 @@ def test_leakage_line():
     assert leakage_line(None, None) == (
         "split scheme unknown; leakage not measured (prepared before leakage was recorded)"
     )
+
+
+def test_queries_in_chunks_give_the_same_result(monkeypatch):
+    from pipeline.splits import leakage
+
+    rng = np.random.default_rng(3)
+    n = 400
+    splits = rng.choice(["train", "val"], n, p=[0.7, 0.3]).tolist()
+    xy, yaw = rng.uniform(0, 300, (n, 2)), rng.uniform(-np.pi, np.pi, n)
+    whole = measure(splits, ["a"] * n, xy, yaw, WINDOW)
+    monkeypatch.setattr(leakage, "MAX_CANDIDATES", 7)  # fewer than one query's candidates: one at a time
+    assert measure(splits, ["a"] * n, xy, yaw, WINDOW) == whole
+    assert 0 < whole["splits"]["val"]["covered"] < whole["splits"]["val"]["overlapping"] <= 1

@@ -24,6 +24,9 @@ NEAR_M = 5.0  # the paper's radius: a frame this close to a training frame sees 
 COVER_POINTS, COVER_STEP = 6765, 4181
 NO_TRAINING_NOTE = "no training frames: leakage not measured"
 UNKNOWN = "unknown"  # the name of a frame's split or city when the table holds none
+# candidate pairs listed at a time: where a city's logs drive the same streets again and again, a query
+# can have thousands of training frames within reach, and all of them at once would not fit in memory
+MAX_CANDIDATES = 1_000_000
 
 
 def is_training(split: str) -> bool:
@@ -139,18 +142,31 @@ def window_overlap(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per query frame: whether its window intersects any training frame's window (exact), and the share
     of its area that they cover (at the points of cover_samples). Candidates: the training frames whose
-    window centre lies within `reach` (a KD-tree); the exact test runs on those alone."""
+    window centre lies within `reach` (a KD-tree); the exact test runs on those alone, a chunk of queries
+    with at most MAX_CANDIDATES candidates at a time."""
+    overlapping, covered = np.zeros(len(query_xy), dtype=bool), np.zeros(len(query_xy))
     if not len(query_xy) or not len(train_xy):
-        return np.zeros(len(query_xy), dtype=bool), np.zeros(len(query_xy))
+        return overlapping, covered
     query_c = np.ascontiguousarray(window_centres(query_xy, query_yaw, window), dtype=np.float64)
     train_c = np.ascontiguousarray(window_centres(train_xy, train_yaw, window), dtype=np.float64)
-    near = cKDTree(train_c).query_ball_point(query_c, np.nextafter(reach(window), np.inf))
-    lengths = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
-    starts = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
-    candidates = np.fromiter((t for ts in near for t in ts), dtype=np.int64, count=int(starts[-1]))
+    query_u, train_u = unit(query_yaw), unit(train_yaw)
     hx, hy = (window.x_max - window.x_min) / 2, (window.y_max - window.y_min) / 2
-    return _overlap_cover(query_c, unit(query_yaw), train_c, unit(train_yaw), starts, candidates,
-                          float(hx), float(hy), cover_samples(window))  # fmt: skip
+    samples = cover_samples(window)
+    tree, radius = cKDTree(train_c), np.nextafter(reach(window), np.inf)
+    before = np.cumsum(tree.query_ball_point(query_c, radius, return_length=True))
+    first = 0
+    while first < len(query_c):
+        done = before[first - 1] if first else 0
+        last = max(first + 1, int(np.searchsorted(before, done + MAX_CANDIDATES, side="right")))
+        near = tree.query_ball_point(query_c[first:last], radius)
+        starts = np.concatenate([[0], before[first:last] - done]).astype(np.int64)
+        candidates = np.fromiter((t for ts in near for t in ts), dtype=np.int64, count=int(starts[-1]))
+        overlapping[first:last], covered[first:last] = _overlap_cover(
+            query_c[first:last], query_u[first:last], train_c, train_u, starts, candidates, float(hx),
+            float(hy), samples,
+        )  # fmt: skip
+        first = last
+    return overlapping, covered
 
 
 def unit(yaw: np.ndarray) -> np.ndarray:

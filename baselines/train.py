@@ -2,7 +2,8 @@
 
 RUN_DIR gets config.json (the resolved config), run.json (data folder, processes, per-process and
 effective batch size, micro-batches accumulated per step, the schedule and where its epochs came from,
-the dataset's target parameters, the best validation so far), log.jsonl (one line per logged step and
+the dataset's target parameters, the best validation so far; a resume's config changes and restarts of
+the best: baselines/run_folder.py), log.jsonl (one line per logged step and
 per skipped step; the losses are means over the processes), val.jsonl (one line per validation: its
 step, epoch, frames, seconds and every F1, baselines/validate.py), tb/ (TensorBoard event files of the
 same), and the checkpoints of baselines/checkpoint.py: checkpoint.pt at every epoch's end and every

@@ -256,7 +256,12 @@ class Trainer:
                 f"{world_size}: resume with as many (torchrun --nproc_per_node {saved_by})"
             )
         settings = [{k: v for k, v in g.items() if k != "params"} for g in self.optimizer.param_groups]
-        self.model.load_state_dict(checkpoint["model"])
+        try:
+            self.model.load_state_dict(checkpoint["model"])
+        except RuntimeError as error:  # a resume's --set of a field that shapes the model
+            first = str(error).splitlines()[1].strip() if "\n" in str(error) else str(error)
+            raise CheckpointError(f"the checkpoint's weights do not fit the model of this config ({first}): "
+                                  "a resume keeps the model's shape") from error  # fmt: skip
         self.optimizer.load_state_dict(checkpoint["optimizer"])
         self.scheduler.load_state_dict(checkpoint["scheduler"])
         self.scaler.load_state_dict(checkpoint["scaler"])

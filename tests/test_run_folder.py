@@ -106,8 +106,12 @@ def test_a_config_changed_by_hand_is_refused_and_a_set_on_resume_is_logged(toy_d
     error = one_error_line(cli("train", "--out", run, "--resume"), "checkpoint.pt: trained with", "train.lr")
     assert f"train.lr={lr}" in error and f"--set train.lr={2 * lr}" in error
     assert files(run) == before  # nothing of the run was touched
-
     (run / "config.json").write_text(json.dumps(trained))
+    before = files(run)
+    refused = cli("train", "--out", run, "--resume", "--set", "encoder.channels=8")  # told, but no fit
+    one_error_line(refused, "weights do not fit the model of this config", "size mismatch")
+    assert files(run) == before
+
     result = cli("train", "--out", run, "--resume", "--set", f"train.lr={2 * lr}")
     assert result.exit_code == 0, result.output
     assert f"resumed at step 2 with train.lr {lr} -> {2 * lr}" in result.output

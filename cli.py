@@ -353,8 +353,8 @@ def train(
         None,
         min=0,
         show_default="10",
-        help="Stop after N steps in a row whose loss or gradient norm is not finite (each is skipped; 0: "
-        "never stop)",
+        help="Stop after N steps in a row whose loss or gradient norm is not finite (each is skipped; under "
+        "fp16, overflows count once the loss scale is down to 1; 0: never stop)",
     ),
     resume: bool = typer.Option(False, help="Continue the run in --out from its last checkpoint"),
     overwrite: bool = typer.Option(

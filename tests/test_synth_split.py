@@ -18,7 +18,11 @@ def test_the_constant_prior_scores_low_on_the_default_validation_frames(tmp_path
 
     summary = synth(tmp_path / "raw", sensors=False)  # the defaults: the learning checks' data, no sensors
     data = tmp_path / "prepared"
-    prepare("av2", tmp_path / "raw" / "av2" / "sensor", data, TargetOptions())
+    leakage = prepare("av2", tmp_path / "raw" / "av2" / "sensor", data, TargetOptions())["leakage"]
+    # the validation world is a city of its own: no training window shares ground with a validation one
+    val = leakage["splits"]["val"]
+    assert (val["frames"], val["overlapping"], val["covered"], val["median_m"]) == (40, 0.0, 0.0, None)
+    assert all(city["no_training_frames_in_city"] for city in val["cities"].values())
     frames = read_table(data, "frames").to_pylist()
     ids = {split: [f["frame_id"] for f in frames if f["split"] == split] for split in ("train", "val")}
     assert len(ids["train"]) == 160 and len(ids["val"]) == 40

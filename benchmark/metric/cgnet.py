@@ -6,7 +6,8 @@ docs/METRICS.md describes the definition and how it differs from ours. In short,
 1. Input. Our LaneGraph is the graph CGNet's dataset class builds from its lines (`get_graph_gt`, and its
    decoder for predictions): node i at the float32 position (x[i], y[i]) in metres in the BEV frame (x
    right, y forward, as in CGNet's nuScenes frame), an edge per (src, dst), repeats once, as
-   `nx.DiGraph(adjacency)`, whose edges run in (src, dst) order. Each node is keyed by
+   `nx.DiGraph(adjacency)`, whose edges run in (src, dst) order, whatever order a prediction lists them in
+   (CGNet builds its true and predicted graphs alike from adjacency matrices). Each node is keyed by
    trunc(float64(float32 x) * 10), the same of y: whole decimetres, truncated towards 0 (CGNet's numpy
    1.23 multiplies a float32 scalar by the int 10 in float64). Nodes with one key are one node; a node
    keeps the successor keys of its edges in first-seen order.

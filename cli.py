@@ -15,6 +15,8 @@ from typing import Literal
 
 import typer
 
+from benchmark.metric.table import METRIC_HELP
+
 HELP = """Online lane graph construction (LaneGAP): training targets from nuScenes and Argoverse 2 maps,
 four baselines (HDMapNet, STSU, MapTR, LaneGAP) under one encoder, and the TOPO and Junction TOPO
 lane-graph metrics.
@@ -44,8 +46,6 @@ PRESET_DEFAULTS = {  # the presets' values of the `cli train` options that defau
 }
 PATH_POINTS = Literal[10, 20, 30, 40]  # the paper's counts of points per path (Tab. 8)
 JSON_HELP = "Print the result as one JSON line instead of the tables (for scripts)"
-METRIC_HELP = ("lanegap (TOPO and Junction TOPO, ours), cgnet (CGNet's evaluator), openlanev2 (DET_l, "
-               "TOP_ll): comma-separated, each under its name in the result (docs/METRICS.md)")  # fmt: skip
 
 
 @contextmanager
@@ -450,11 +450,11 @@ def eval_(
     import torch
 
     from baselines.evaluate import evaluate
-    from benchmark.metric.variants import parse_metrics
-    from benchmark.tables import eval_table, finish, variant_tables
+    from benchmark.metric.table import console_tables, parse_metrics
+    from benchmark.tables import eval_table, finish
 
     with reported_errors():
-        metrics = parse_metrics(f"lanegap,{metric}")
+        metrics = parse_metrics(metric, always=True)
         if device == "cuda" and not torch.cuda.is_available():
             raise ValueError(f"--device cuda: CUDA is not available to torch {torch.__version__} here")
         if not run.is_dir():
@@ -464,7 +464,7 @@ def eval_(
         result = evaluate(run, data, split, device, floor=floor, bootstrap=bootstrap, checkpoint=checkpoint,
                           metrics=metrics)  # fmt: skip
     table, notes = eval_table(result)
-    others, other_notes = variant_tables(result)
+    others, other_notes = console_tables(metrics, result)
     heading = f"{run} on {result['split']} of {result['data']}: {result['frames']} frames"
     from baselines.run_folder import EVALUATION_FILES
 
@@ -544,9 +544,9 @@ def score(
       cli score --pred runs/lanegap/predictions.parquet --gt prepared/av2
       cli score --pred pts_bbox/nuscmap_results.json --format maptrv2 --gt prepared/nusc --out runs/maptrv2
     """
-    from benchmark.metric.variants import parse_metrics
+    from benchmark.metric.table import ALWAYS, console_tables, parse_metrics
     from benchmark.score import score as run_score
-    from benchmark.tables import finish, score_table, sweep_table, variant_tables
+    from benchmark.tables import finish, score_table, sweep_table
 
     params = dict(step=step, match_radius=match_radius, reach_radius=reach_radius, matching=matching)
     if range_:
@@ -569,10 +569,10 @@ def score(
         heading = (f"{pred} against {gt}{where}: {result['frames']} frames scored, "
                    f"{result['frames_predicted']} predicted, {result['frames_missing']} missing")  # fmt: skip
     tables, notes = [], []
-    if "lanegap" in metrics:
+    if all(always in metrics for always in ALWAYS):  # LaneGAP's metric: the main table
         table, notes = score_table(result)
         tables.append((heading, table))
-    others, other_notes = variant_tables(result)
+    others, other_notes = console_tables(metrics, result)
     tables, notes = tables + others, notes + other_notes
     if result.get("sweep"):
         tables.append(sweep_table(result))
@@ -651,12 +651,12 @@ def report(
       cli report --runs runs --out report
       cli report --runs runs/lanegap --runs runs/maptr --roundtrip rt_path.json --reference paper --out report
     """
-    from benchmark.metric.variants import parse_metrics
+    from benchmark.metric.table import parse_metrics
     from benchmark.report.writer import write_report
     from benchmark.tables import finish, report_tables
 
     with reported_errors():
-        metrics = parse_metrics(f"lanegap,{metric}")
+        metrics = parse_metrics(metric, always=True)
         result = write_report(runs, out, roundtrip, workers, reference=reference, draws=bootstrap,
                               metrics=metrics)  # fmt: skip
 

@@ -38,6 +38,7 @@ from baselines.models import Built, build, load_config, without_pretrained_weigh
 from benchmark.graph_table import graphs_from_table, read_graph_table
 from benchmark.metric.bootstrap import DRAWS, add_intervals, check_draws
 from benchmark.metric.params import MetricParams
+from benchmark.metric.table import ALWAYS, Metric
 from benchmark.score import score_frames, write_run
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
@@ -134,11 +135,11 @@ def predict(built: Built, loader: DataLoader, device: torch.device, autocast_dty
 
 def score_predictions(
     graphs: dict[str, LaneGraph], ground_truth: dict[str, LaneGraph], params: MetricParams, bootstrap: int,
-    metrics: tuple[str, ...] = ("lanegap",),
+    metrics: tuple[Metric, ...] = ALWAYS,
 ) -> tuple[dict, np.ndarray]:  # fmt: skip
     """The scores of the predicted frames (by frame id) with a 95 % interval beside each F1 from
     `bootstrap` draws over them, and each frame's counts (FRAME_COUNTS, for `cli report`'s paired
-    intervals); `metrics` adds the other published ones (benchmark/metric/variants.py)."""
+    intervals); `metrics` adds the other published ones (benchmark/metric/table.py)."""
     pairs = [(graphs[frame_id], ground_truth[frame_id]) for frame_id in sorted(graphs)]
     scores, frame_counts = score_frames(pairs, params, metrics=metrics)
     add_intervals(scores, frame_counts, bootstrap)
@@ -174,13 +175,13 @@ def evaluate(
     floor: bool = True,
     bootstrap: int = DRAWS,
     checkpoint: str = "last",
-    metrics: tuple[str, ...] = ("lanegap",),
+    metrics: tuple[Metric, ...] = ALWAYS,
 ) -> dict:
     """Predict, post-process to lane graphs, score, and score the blind floor (`floor`,
     baselines/floor.py); returns (and writes) the metrics, with a 95 % interval beside each F1 from
     `bootstrap` draws over the frames (0: none), with the weights of `checkpoint` (last or best). The floor's
     prior search is cached in DATA/floor_cache. `metrics`: LaneGAP's and the other published ones chosen
-    (benchmark/metric/variants.py), each under its name in metrics.json."""
+    (benchmark/metric/table.py; LaneGAP's among them), each other one under its name in metrics.json."""
     check_draws(bootstrap)
     run_dir = Path(run_dir)
     device_ = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))

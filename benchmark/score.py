@@ -28,59 +28,52 @@ from benchmark.graph_table import (
     read_graph_table,
 )
 from benchmark.metric.bootstrap import FRAME_COUNTS, add_intervals, check_draws, write_frame_counts
-from benchmark.metric.params import METRIC_VERSION, MetricParams
-from benchmark.metric.totals import Totals
-from benchmark.metric.variants import VariantScores
+from benchmark.metric.frame import Frame
+from benchmark.metric.params import MetricParams
+from benchmark.metric.table import ALWAYS, Contributions, Metric
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
 from pipeline.progress import track
 
 
 def _score_chunk(
-    chunk: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, metrics: tuple[str, ...],
+    chunk: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, metrics: tuple[Metric, ...],
     scores: list[np.ndarray | None] | None = None,
-) -> tuple[Totals, VariantScores]:  # fmt: skip
-    totals, others = Totals(params), VariantScores(metrics, params.bev_range)
+) -> Contributions:  # fmt: skip
+    part = Contributions(metrics, params)
     for (pred, gt), frame_scores in zip(chunk, scores or [None] * len(chunk)):
-        score_frame(totals, others, pred, gt, metrics, frame_scores)
-    return totals, others
-
-
-def score_frame(totals: Totals, others: VariantScores, pred: LaneGraph, gt: LaneGraph,
-                metrics: tuple[str, ...], scores: np.ndarray | None = None) -> None:  # fmt: skip
-    """One frame into the sums; `scores` (one per edge of `pred`, or None) go to the other metrics only."""
-    if "lanegap" in metrics:
-        totals.add_frame(pred, gt)
-    others.add_frame(pred, gt, scores)
+        part.add_frame(Frame(pred, gt, frame_scores))
+    return part
 
 
 def score_pairs(
     pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1, bootstrap: int = 0,
-    metrics: tuple[str, ...] = ("lanegap",),
+    metrics: tuple[Metric, ...] = ALWAYS,
 ) -> dict:  # fmt: skip
     """The result dict for (pred, gt) graphs, one pair per frame, in `workers` processes (0: one per
     core); with `bootstrap` draws, a 95 % interval beside each LaneGAP F1 (benchmark/metric/bootstrap.py)."""
     result, counts = score_frames(pairs, params, workers, metrics)
-    return add_intervals(result, counts, bootstrap) if "lanegap" in metrics else result
+    return add_intervals(result, counts, bootstrap) if counts is not None else result
 
 
 def score_frames(
     pairs: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, workers: int = 1,
-    metrics: tuple[str, ...] = ("lanegap",), pred_scores: list[np.ndarray | None] | None = None,
-) -> tuple[dict, np.ndarray]:  # fmt: skip
+    metrics: tuple[Metric, ...] = ALWAYS, pred_scores: list[np.ndarray | None] | None = None,
+) -> tuple[dict, np.ndarray | None]:  # fmt: skip
     """(score_pairs' result without intervals, each pair's LaneGAP counts: (frames, FRAME_COLUMNS) in pair
-    order). `metrics` (benchmark/metric/variants.py): LaneGAP's at the top level, each other one under its
-    name, all scored per frame in the same workers. `pred_scores`, parallel to `pairs`: each prediction's
-    edge scores (one per edge of its graph, or None: no score), OpenLane-V2's lane confidences."""
+    order, None without LaneGAP's metric). `metrics` (benchmark/metric/table.py): LaneGAP's at the top level,
+    each other one under its name, all scored per frame in the same workers. `pred_scores`, parallel to
+    `pairs`: each prediction's edge scores (one per edge of its graph, or None: no score), OpenLane-V2's
+    lane confidences."""
     workers = workers if workers > 0 else os.cpu_count() or 1
     if pred_scores is not None and len(pred_scores) != len(pairs):
         raise ValueError(f"pred_scores: one per pair ({len(pairs)}) is needed, not {len(pred_scores)}")
     scores = list(pred_scores) if pred_scores is not None else [None] * len(pairs)
-    totals, others = Totals(params), VariantScores(metrics, params.bev_range)
+    scored = Contributions(metrics, params)
     with track("score frames", len(pairs)) as advance:
         if workers <= 1 or len(pairs) < 2 * workers:
             for (pred, gt), frame_scores in zip(pairs, scores):
-                score_frame(totals, others, pred, gt, metrics, frame_scores)
+                scored.add_frame(Frame(pred, gt, frame_scores))
                 advance()
         else:
             size = max(1, min(64, len(pairs) // (4 * workers)))
@@ -89,12 +82,10 @@ def score_frames(
             with ProcessPoolExecutor(workers) as pool:
                 parts = pool.map(_score_chunk, chunks, [params] * len(chunks), [metrics] * len(chunks),
                                  score_chunks)  # fmt: skip
-                for chunk, (part, records) in zip(chunks, parts):
-                    totals.add(part)  # exact sums: the chunking does not change a digit
-                    others.add(records)  # in chunk order, so in pair order
+                for chunk, part in zip(chunks, parts):
+                    scored.add(part)  # in chunk order, so in pair order; LaneGAP's exact sums: no digit moves
                     advance(len(chunk))
-    result = {**totals.result(), "metric_version": METRIC_VERSION} if "lanegap" in metrics else {}
-    return {**result, **others.results()}, totals.frame_table()
+    return scored.result(), scored.frame_counts()
 
 
 def sweep_scores(pred: predictions.Predictions, gt: dict[str, LaneGraph], params: MetricParams,
@@ -129,15 +120,16 @@ def check_out(out: Path | None) -> None:
             )
 
 
-def check_metrics(metrics: tuple[str, ...], out: Path | None, sweep: bool) -> None:
+def check_metrics(metrics: tuple[Metric, ...], out: Path | None, sweep: bool) -> None:
     """A run folder (`cli report` reads its LaneGAP scores) and `--sweep` (LaneGAP's F1 by kept score) need
-    LaneGAP's metric among the chosen."""
-    if "lanegap" in metrics:
+    the always-computed metric, LaneGAP's, among the chosen."""
+    if all(metric in metrics for metric in ALWAYS):
         return
+    names = ",".join(metric.name for metric in ALWAYS)
     if sweep:
-        raise GraphTableError("--sweep: it sweeps LaneGAP's F1; add lanegap to --metric")
+        raise GraphTableError(f"--sweep: it sweeps LaneGAP's F1; add {names} to --metric")
     if out is not None and Path(out).suffix.lower() != ".json":
-        raise GraphTableError(f"--out {out}: a run folder holds LaneGAP's scores for cli report; add lanegap "
+        raise GraphTableError(f"--out {out}: a run folder holds LaneGAP's scores for cli report; add {names} "
                               "to --metric or write a .json file")  # fmt: skip
 
 
@@ -159,11 +151,11 @@ def write_run(run_dir: Path, graphs: dict[str, LaneGraph], frame_counts: np.ndar
 def score(
     pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, bootstrap: int = 0,
     split: str | None = None, fmt: str = "graph", class_name: str | None = None,
-    min_score: float | None = None, sweep: bool = False, metrics: tuple[str, ...] = ("lanegap",), **params,
+    min_score: float | None = None, sweep: bool = False, metrics: tuple[Metric, ...] = ALWAYS, **params,
 ) -> dict:  # fmt: skip
     """Score predictions against the ground truth; params are MetricParams fields; `bootstrap` draws over
     the frames give each F1 its 95 % interval (0: none; `cli score`: DRAWS). `metrics`: LaneGAP's (the
-    result's top level) and the other published ones (benchmark/metric/variants.py, each under its name).
+    result's top level) and the other published ones (benchmark/metric/table.py, each under its name).
 
     fmt "graph" (a graph table), "maptrv2" / "cgnet" (another codebase's JSON) or "auto", and which frames
     are scored for `split`: benchmark/predictions.py. `sweep` (not for graph) adds the F1 at each of
@@ -182,7 +174,7 @@ def score(
     # each prediction's edge scores (a result file's vectors' scores; None: a graph table, no score)
     pred_scores = None if pred.edge_scores is None else [pred.edge_scores[f] for f in pred.frame_ids]
     result, frame_counts = score_frames(pairs, metric_params, workers, metrics, pred_scores)
-    if "lanegap" in metrics:
+    if frame_counts is not None:
         add_intervals(result, frame_counts, bootstrap)
     result.setdefault("frames", len(pairs))
     result.update(pred=str(pred_path), gt=str(gt_path), **pred.info())

@@ -180,27 +180,6 @@ def report_tables(result: Report) -> tuple[list[tuple[str, Table]], list[dict]]:
     return shown, tables
 
 
-def variant_tables(result: dict) -> tuple[list[tuple[str, Table]], list[str]]:
-    """The other published metrics that `--metric` added (benchmark/metric/variants.py): CGNet's GEO, TOPO
-    and JTOPO, OpenLane-V2's DET_l and TOP_ll, each a (heading, table), with their notes."""
-    tables, notes = [], []
-    if "cgnet" in result:
-        cgnet = result["cgnet"]
-        table = Table("CGNet metric", "precision", "recall", "F1")
-        for name, key in (("GEO", "geo"), ("TOPO", "topo"), ("JTOPO", "jtopo")):
-            table.add_row(name, *(cell(cgnet[key][k]) for k in ("precision", "recall", "f1")))
-        tables.append((f"CGNet's evaluator: per-frame scores averaged over {cgnet['frames']} frames", table))
-        notes += [cgnet["note"]] if "note" in cgnet else []
-    if "openlanev2" in result:
-        ol = result["openlanev2"]
-        table = Table("OpenLane-V2", "value", *(f"at {t} m" for t in ol["det_l_by_threshold"]))
-        table.add_row("DET_l", cell(ol["det_l"]), *map(cell, ol["det_l_by_threshold"].values()))
-        table.add_row("TOP_ll", cell(ol["top_ll"]), *map(cell, ol["top_ll_by_threshold"].values()))
-        tables.append((f"OpenLane-V2's DET_l and TOP_ll over {ol['frames']} frames, {ol['range']}", table))
-        notes += [f"OpenLane-V2 confidences: {ol['confidences']}"] + ([ol["note"]] if "note" in ol else [])
-    return tables, notes
-
-
 def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[str] = ()) -> None:
     """A command's end: with --json its result as one JSON line on stdout (and what it wrote on stderr);
     else its (heading, table) pairs, notes and the paths it wrote."""

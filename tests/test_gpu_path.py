@@ -20,6 +20,7 @@ from baselines.layers.bev_encoder import CameraEncoder
 from baselines.layers.resnet import build_resnet
 from baselines.models import check_backbone_weights, load_config, resolve_config
 from baselines.train import train, use_dataset_schedule
+from benchmark.metric.table import parse_metrics
 from benchmark.tables import eval_table
 from cli import app
 from pipeline.manifest import PreparedData, is_synthetic
@@ -73,7 +74,8 @@ def test_eval_and_resume_need_no_pretrained_file(tmp_path):
     run = tmp_path / "run"
     train(config, data, run)
     weights.rename(tmp_path / "elsewhere.pth")
-    metrics = evaluate(run, data, "train", "cpu", floor=False, bootstrap=0, metrics=("lanegap", "openlanev2"))
+    chosen = parse_metrics("lanegap,openlanev2")
+    metrics = evaluate(run, data, "train", "cpu", floor=False, bootstrap=0, metrics=chosen)
     assert metrics["frames"] == 2 and metrics["precision"] == "fp32"
     # --metric: the other metric under its name in metrics.json, beside LaneGAP's
     written = json.loads((run / "metrics.json").read_text())

@@ -10,15 +10,15 @@ from typer.testing import CliRunner
 
 from benchmark.graph_table import graphs_from_table, read_graph_table
 from benchmark.metric.params import MetricParams
-from benchmark.metric.variants import METRICS, parse_metrics
+from benchmark.metric.table import METRICS, parse_metrics
 from benchmark.score import score, score_frames
 from cli import app
 from pipeline.lane_graph import LaneGraph
 
 
 def test_metric_names_parse_in_a_fixed_order_and_a_bad_one_is_named():
-    assert parse_metrics("openlanev2, lanegap") == ("lanegap", "openlanev2")
-    assert parse_metrics(",".join(reversed(METRICS))) == METRICS
+    assert [metric.name for metric in parse_metrics("openlanev2, lanegap")] == ["lanegap", "openlanev2"]
+    assert parse_metrics(",".join(metric.name for metric in reversed(METRICS))) == METRICS
     expected = "--metric 'lanegap,topo': expected one or more of lanegap, cgnet, openlanev2"
     with pytest.raises(ValueError, match=expected):
         parse_metrics("lanegap,topo")
@@ -37,12 +37,12 @@ def pairs(synth_prepared) -> list[tuple[LaneGraph, LaneGraph]]:
 def test_a_variant_adds_its_own_result_and_leaves_lanegap_s_as_it_was(pairs):
     params = MetricParams()
     alone, counts = score_frames(pairs, params)
-    both, both_counts = score_frames(pairs, params, metrics=("lanegap", "openlanev2"))
+    both, both_counts = score_frames(pairs, params, metrics=parse_metrics("lanegap,openlanev2"))
     assert {key: value for key, value in both.items() if key != "openlanev2"} == alone
     assert (both_counts == counts).all()
     ol = both["openlanev2"]
     assert ol["frames"] == len(pairs) and 0.0 < ol["det_l"] < 1.0 and 0.0 < ol["top_ll"] < 1.0
-    only, _ = score_frames(pairs, params, metrics=("openlanev2",))
+    only, _ = score_frames(pairs, params, metrics=parse_metrics("openlanev2"))
     assert set(only) == {"openlanev2"} and only["openlanev2"] == ol
 
 
@@ -69,7 +69,7 @@ def test_cli_score_writes_each_metric_under_its_name(synth_prepared, tmp_path):
 def test_what_needs_lanegap_refuses_a_choice_without_it(synth_prepared, tmp_path):
     data = synth_prepared["av2"]
     with pytest.raises(ValueError, match="--out .*run folder holds LaneGAP's scores"):
-        score(data, data, tmp_path / "run", metrics=("openlanev2",))
+        score(data, data, tmp_path / "run", metrics=parse_metrics("openlanev2"))
     assert not (tmp_path / "run").exists()
     result = CliRunner().invoke(app, ["score", "--pred", str(data), "--gt", str(data), "--metric", "nope"])
     assert result.exit_code == 1 and result.output.count("error:") == 1 and "--metric 'nope'" in result.output
@@ -94,12 +94,12 @@ def test_cli_report_adds_a_table_per_other_metric(synth_prepared, tmp_path):
 def test_cgnet_through_the_workers_equals_its_own_functions(pairs):
     from benchmark.metric.cgnet import CGNetParams, cgnet_frame, cgnet_result
 
-    scored, _ = score_frames(pairs, MetricParams(), workers=2, metrics=("cgnet",))
+    scored, _ = score_frames(pairs, MetricParams(), workers=2, metrics=parse_metrics("cgnet"))
     direct = cgnet_result([cgnet_frame(pred, gt, CGNetParams()) for pred, gt in pairs])
     assert scored == {"cgnet": direct} and 0.0 < direct["topo"]["f1"] < 1.0
 
 
 def test_cgnet_says_when_the_data_reach_beyond_its_box(pairs):
-    wide, _ = score_frames(pairs, MetricParams(bev_range="50x100"), metrics=("cgnet",))
+    wide, _ = score_frames(pairs, MetricParams(bev_range="50x100"), metrics=parse_metrics("cgnet"))
     assert "50x100" in wide["cgnet"]["note"] and "drops the lanes beyond" in wide["cgnet"]["note"]
-    assert "note" not in score_frames(pairs, MetricParams(), metrics=("cgnet",))[0]["cgnet"]
+    assert "note" not in score_frames(pairs, MetricParams(), metrics=parse_metrics("cgnet"))[0]["cgnet"]

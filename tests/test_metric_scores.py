@@ -24,6 +24,7 @@ from benchmark.external import merge_equal_points, merge_equal_points_scored
 from benchmark.graphs.path2graph import path2graph, path2graph_scored
 from benchmark.metric.openlanev2 import SCORED
 from benchmark.metric.params import EPS, MetricParams
+from benchmark.metric.table import METRICS
 from benchmark.score import score_frames
 from cli import app
 from pipeline.lane_graph import LaneGraph
@@ -234,7 +235,7 @@ def test_score_frames_with_scores_in_two_workers_equals_one():
         pred, edge_scores = path2graph_scored(pred_paths, rng.random(len(pred_paths)))
         pairs.append((pred, path2graph(gt_paths)))
         scores.append(None if frame % 5 == 0 else edge_scores)
-    metrics = ("lanegap", "cgnet", "openlanev2")
+    metrics = METRICS
     one, one_counts = score_frames(pairs, MetricParams(), workers=1, metrics=metrics, pred_scores=scores)
     two, two_counts = score_frames(pairs, MetricParams(), workers=2, metrics=metrics, pred_scores=scores)
     assert one == two and np.array_equal(one_counts, two_counts)

@@ -27,11 +27,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from benchmark.graph_table import graph_row, graphs_from_table, read_graph_table
+from benchmark.metric.table import METRICS
 from pipeline import kernels
 from pipeline.io import read_table
 from tools.bench_cgnet import noisy
-
-METRICS = ("lanegap", "cgnet", "openlanev2")
 
 
 def results_file(path: Path, data: Path, table: str, cls: tuple[str, int]) -> Path:

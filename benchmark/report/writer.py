@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmark.metric import bootstrap
+from benchmark.metric.table import ALWAYS, Metric
 from benchmark.report.measured_tables import load_roundtrips, roundtrip_tables
 from benchmark.report.reference import load_reference
 from benchmark.report.runs import Block, group_blocks, load_runs
@@ -47,11 +48,11 @@ class Report:
 
 def write_report(
     runs: list[Path], out: Path, roundtrips: list[Path] = (), workers: int = 1, reference: str | None = None,
-    draws: int = bootstrap.DRAWS, metrics: tuple[str, ...] = ("lanegap",),
+    draws: int = bootstrap.DRAWS, metrics: tuple[Metric, ...] = ALWAYS,
 ) -> Report:  # fmt: skip
     """Write out/report.md and the PNGs it links; returns what was written. `reference="paper"` places
     the paper's tables beside the measured ones; `draws`: bootstrap draws of the intervals (0: none);
-    `metrics` beyond lanegap: a table per other published metric (benchmark/report/variant_tables.py)."""
+    `metrics` beyond LaneGAP's: a table per other published metric (benchmark/report/variant_tables.py)."""
     out = Path(out)
     bootstrap.check_draws(draws)
     refs = load_reference(reference) if reference else {}

@@ -84,7 +84,7 @@ def test_eval_and_resume_need_no_pretrained_file(tmp_path):
     assert any(note.startswith("fps: batch 1 on cpu in fp32") for note in notes)
     resumed = load_config(run / "config.json")
     resumed.train.epochs = 2
-    assert train(resumed, data, run, resume=True)["steps"] == 2
+    assert train(resumed, data, run, resume=True, told={"train.epochs"})["steps"] == 2
 
 
 def test_the_paper_schedule_is_the_datasets(tmp_path, synth_prepared):

@@ -45,6 +45,10 @@ MANIFEST, ERRORS, PICTURE = "manifest.json", "errors.jsonl", "splits.png"
 # where an --overwrite run writes until all of it has succeeded, in OUT: the earlier output stays whole
 # until then, and OUT is on the same file system, so the new files move in by rename
 STAGE = ".overwrite"
+# inside the stage while the new output moves in: the earlier output being set aside (ASIDE_PARTLY), then
+# all of it (ASIDE, renamed from ASIDE_PARTLY once complete), so that an interruption at any point can be
+# undone from what the folders hold (recover_overwrite)
+ASIDE_PARTLY, ASIDE = ".earlier-partly", ".earlier"
 # what manifest.json holds of the summary beside its last_run: measured over the whole folder, or the plan's
 BESIDE_LAST_RUN = ("leakage", "split_shares")
 
@@ -567,25 +571,82 @@ def written_files(folder: Path) -> list[Path]:
     return found
 
 
-def clear_stage(stage: Path) -> None:
-    """Remove an --overwrite run's work folder (what it wrote, then the folders if empty)."""
-    for path in written_files(stage):
+def remove_output(folder: Path) -> None:
+    """Remove what `cli prepare` wrote in `folder` (written_files), then its table folders and itself if
+    they are empty (what is left is not ours)."""
+    for path in written_files(folder):
         path.unlink()
-    for folder in [stage / table for table in io.TABLES] + [stage]:
+    for sub in [folder / table for table in io.TABLES] + [folder]:
         with contextlib.suppress(OSError):  # absent, or holding what is not ours
-            folder.rmdir()
+            sub.rmdir()
+
+
+def move_files(source: Path, target: Path, manifest_last: bool = True) -> None:
+    """Rename every file `cli prepare` wrote in `source` to the same place under `target`, the manifest
+    last (first when setting an output aside): a folder with a manifest holds all of its output."""
+    paths = written_files(source)
+    for path in reversed(paths) if manifest_last else paths:
+        moved = target / path.relative_to(source)
+        moved.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(path, moved)
 
 
 def move_in(stage: Path, out: Path) -> None:
-    """The complete output of an --overwrite run replaces everything earlier runs wrote in `out` (the
-    manifest goes first and comes back last); files the project did not write stay."""
-    for path in written_files(out):
-        path.unlink()
-    for path in reversed(written_files(stage)):
-        target = out / path.relative_to(stage)
-        target.parent.mkdir(exist_ok=True)
-        os.replace(path, target)
-    clear_stage(stage)
+    """The complete output of an --overwrite run (in `stage`) replaces everything earlier runs wrote in
+    `out`; files the project did not write stay. The earlier files are set aside in the stage (all of
+    them, then the folder is renamed ASIDE), the new ones moved in, the manifest last, and only then is the
+    earlier output deleted: at every step recover_overwrite can put back the earlier output, or finish."""
+    partly, aside = stage / ASIDE_PARTLY, stage / ASIDE
+    partly.mkdir()
+    move_files(out, partly, manifest_last=False)
+    partly.rename(aside)
+    move_files(stage, out)
+    remove_output(aside)
+    remove_output(stage)
+
+
+def recover_overwrite(out: Path) -> str | None:
+    """Undo what an --overwrite run that did not finish left in `out` (OUT/.overwrite), from the folders
+    alone, and say what was done; None when nothing was left. Before moving in: its unfinished output is
+    removed. While moving in: the earlier output is put back whole, and the new files removed. After its
+    manifest moved in (only the clean-up unfinished): the new output stays, and the clean-up ends."""
+    stage = out / STAGE
+    if not stage.is_dir():
+        return None
+    partly, aside = stage / ASIDE_PARTLY, stage / ASIDE
+    interrupted = "an interrupted `cli prepare --overwrite`"
+    said = f"{out}: removed the unfinished output of {interrupted}"
+    if aside.is_dir() and not written_files(stage):  # every new file, the manifest last, is in place
+        said = f"{out}: finished the clean-up of {interrupted} (its output is whole)"
+        remove_output(aside)
+    if aside.is_dir():  # moving in was under way: every file of OUT's is new, the earlier ones all aside
+        for path in written_files(out):
+            path.unlink()
+        aside.rename(partly)
+    if partly.is_dir():  # the earlier files, all or some of them aside (the rest still in OUT)
+        move_files(partly, out)
+        remove_output(partly)
+        said = f"{out}: put back the earlier output that {interrupted} was replacing"
+    remove_output(stage)
+    return said
+
+
+def check_no_interrupted_overwrite(out: Path) -> None:
+    """Refuse to add to a folder that an interrupted --overwrite run left (OUT/.overwrite): it may be
+    part way through replacing the earlier output, which a run with --overwrite puts right first."""
+    stage = out / STAGE
+    if not stage.is_dir():
+        return
+    if (stage / ASIDE_PARTLY).is_dir() or (stage / ASIDE).is_dir():
+        raise ValueError(
+            f"{out}: an interrupted `cli prepare --overwrite` was replacing its output ({stage} is left); "
+            "run with --overwrite, which first puts that right (the earlier output back, or the new one "
+            "finished)"
+        )
+    raise ValueError(
+        f"{out}: an interrupted `cli prepare --overwrite` left {stage} (the earlier output is whole); run "
+        f"with --overwrite to start afresh, or delete {stage} to add to the earlier output"
+    )
 
 
 def run_jobs(
@@ -683,8 +744,10 @@ def prepare(
     out. split_scheme "geographic" puts frames in splits by place (SplitOptions, pipeline/splits/). Every
     run measures the leakage of the whole output's non-training splits (pipeline/splits/leakage.py) into
     manifest.json and draws OUT/splits.png. overwrite: start afresh: the run writes into OUT/.overwrite
-    and, once all of it has succeeded, replaces what earlier runs wrote (written_files) with it; without
-    it, logs already done are kept and the folder must have been prepared the same way (check_manifest).
+    and, once all of it has succeeded, replaces what earlier runs wrote (written_files) with it (move_in);
+    failed or interrupted at any step, the earlier output is put back whole (recover_overwrite, also at
+    the next run). Without it, logs already done are kept and the folder must have been prepared the same
+    way (check_manifest), and a folder that an interrupted --overwrite run left is refused.
     executor: local (this process, or a fork pool of `workers`) or ray (one Ray task per log: a local
     instance of `workers` CPUs, or the cluster at address, "auto" or HOST:PORT; pipeline/executor.py)."""
     check_options(options, frame_stride, workers, on_error, executor)
@@ -696,20 +759,25 @@ def prepare(
         import_ray()
     root, out = Path(root).resolve(), Path(out)
     parameters = manifest_parameters(options, frame_stride, splits)
+    if not overwrite:
+        check_no_interrupted_overwrite(out)
     check_manifest(out, dataset, root, version, parameters, overwrite)
     plan = plan_jobs(dataset, root, version, split, frame_stride, splits)
     run = Run(dataset, root, version, split, options, frame_stride, on_error, workers, executor, address)
     out.mkdir(parents=True, exist_ok=True)
     if not overwrite:
         return write_output(out, plan, splits, parameters, run, redo=False)
+    said = recover_overwrite(out)  # what an interrupted --overwrite run left
+    if said:
+        console.print(said, soft_wrap=True)
     stage = out / STAGE
-    clear_stage(stage)  # what an interrupted --overwrite run left
     try:
         summary = write_output(stage, plan, splits, parameters, run, redo=True)
         move_in(stage, out)
-    finally:
-        if stage.exists():  # the run failed: the earlier output stays as it was
-            clear_stage(stage)
+    except BaseException:  # failed or interrupted at any step: the earlier output is put back whole
+        with contextlib.suppress(OSError):  # else the next run puts it right, or names the folder left
+            recover_overwrite(out)
+        raise
     return summary
 
 

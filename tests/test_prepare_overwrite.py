@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import json
 import shutil
+import types
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pyarrow as pa
@@ -13,6 +15,7 @@ import pyarrow.feather as feather
 import pytest
 from typer.testing import CliRunner
 
+import pipeline.prepare as prepare_module
 from cli import app
 from pipeline.io import read_table
 from pipeline.prepare import prepare
@@ -194,3 +197,135 @@ def test_another_root_or_version_is_refused(raw, tmp_path):
                  "--out", scenes)  # fmt: skip
     one_error_line(result, "--version v1.0-mini (now v1.0-trainval)")
     assert files(scenes) == before
+
+
+# An --overwrite run interrupted while its output moves in (issue 59's review): OUT then holds the earlier
+# output whole or the new one whole, never a mix, never no manifest.
+
+
+def failing_replace(at: int, error: BaseException, calls: list[int], for_good: bool = False):
+    """pipeline.prepare's os with a replace that raises `error` at its `at`-th call (and every later one
+    `for_good`), counting in `calls`, and renames otherwise."""
+    import os
+
+    def replace(source, target):
+        calls.append(1)
+        if len(calls) == at or (for_good and len(calls) > at):
+            raise error
+        os.replace(source, target)
+
+    return types.SimpleNamespace(replace=replace)
+
+
+def written(folder: Path) -> dict[str, bytes]:
+    """The files `cli prepare` writes in `folder`, by path, with their bytes."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in prepare_module.written_files(folder)}
+
+
+@pytest.fixture(scope="module")
+def outputs(raw, tmp_path_factory) -> dict[str, Path]:
+    """An earlier output (both logs) with a file of the user's, and a complete staged --overwrite output
+    (the training log alone, other path points), each to be copied."""
+    root, logs = raw / "av2" / "sensor", logs_of(raw)
+    base = tmp_path_factory.mktemp("outputs")
+    prepare("av2", root, base / "old", TargetOptions())
+    (base / "old" / "notes.txt").write_text("mine\n")
+    (base / "one_log.txt").write_text(logs["train"] + "\n")
+    prepare("av2", root, base / "new", TargetOptions(path_points=20),
+            split_files={"train": base / "one_log.txt"})  # fmt: skip
+    return {"old": base / "old", "new": base / "new", "split_file": base / "one_log.txt", "root": root}
+
+
+def staged(outputs: dict[str, Path], out: Path) -> None:
+    shutil.copytree(outputs["old"], out)
+    shutil.copytree(outputs["new"], out / prepare_module.STAGE)
+
+
+def test_moving_in_interrupted_at_any_file_leaves_the_old_or_the_new_output_whole(
+    outputs, tmp_path, monkeypatch
+):
+    old, new = files(outputs["old"]), written(outputs["new"])
+    moves = len(written(outputs["old"])) + len(new)  # each earlier file set aside, each new one moved in
+    for at in range(1, moves + 1):
+        out = tmp_path / f"out{at}"
+        staged(outputs, out)
+        calls: list[int] = []
+        # killed at the at-th rename: nothing of the run's own runs after it
+        with monkeypatch.context() as patch:
+            patch.setattr(prepare_module, "os", failing_replace(at, KeyboardInterrupt(), calls))
+            with pytest.raises(KeyboardInterrupt):
+                prepare_module.move_in(out / prepare_module.STAGE, out)
+        assert len(calls) == at
+        assert (out / prepare_module.STAGE).is_dir()
+        # a run without --overwrite is refused in one line, and changes nothing
+        before = files(out)
+        with pytest.raises(
+            ValueError, match=r"interrupted `cli prepare --overwrite` was replacing.*--overwrite"
+        ):
+            prepare("av2", outputs["root"], out, TargetOptions())
+        assert files(out) == before
+        # the next --overwrite run first puts back the earlier output, whole, with the user's file
+        said = prepare_module.recover_overwrite(out)
+        assert said == f"{out}: put back the earlier output that an interrupted `cli prepare --overwrite` " \
+                       "was replacing", at  # fmt: skip
+        assert files(out) == old, at
+    # killed after the new manifest moved in, while the earlier output is deleted: the new output stays
+    out = tmp_path / "cleanup"
+    staged(outputs, out)
+    with monkeypatch.context() as patch:
+        patch.setattr(prepare_module, "remove_output", mock.Mock(side_effect=KeyboardInterrupt))
+        with pytest.raises(KeyboardInterrupt):
+            prepare_module.move_in(out / prepare_module.STAGE, out)
+    assert written(out) == new
+    assert prepare_module.recover_overwrite(out).endswith(
+        "finished the clean-up of an interrupted `cli prepare --overwrite` (its output is whole)"
+    )
+    assert written(out) == new and (out / "notes.txt").is_file() and not (out / prepare_module.STAGE).exists()
+
+
+@pytest.mark.parametrize("at", [3, 20])  # setting the earlier files aside; moving the new ones in
+def test_an_overwrite_interrupted_while_moving_in_puts_the_earlier_output_back(outputs, tmp_path, monkeypatch,
+                                                                               at):  # fmt: skip
+    out = tmp_path / "out"
+    shutil.copytree(outputs["old"], out)
+    before = files(out)
+    args = dict(overwrite=True, split_files={"train": outputs["split_file"]})
+    calls: list[int] = []
+    with monkeypatch.context() as patch:
+        patch.setattr(prepare_module, "os", failing_replace(at, KeyboardInterrupt(), calls))
+        with pytest.raises(KeyboardInterrupt):
+            prepare("av2", outputs["root"], out, TargetOptions(path_points=20), **args)
+    assert files(out) == before  # at once, by the run itself
+    # a rename that fails for good: the folder is left to the next run, which says what it did
+    with monkeypatch.context() as patch:
+        patch.setattr(prepare_module, "os", failing_replace(at, OSError("disk gone"), [], for_good=True))
+        with pytest.raises(OSError, match="disk gone"):
+            prepare("av2", outputs["root"], out, TargetOptions(path_points=20), **args)
+    assert "manifest.json" not in files(out)  # the first rename failed, and so did putting it back
+    said = one_error_line(cli("prepare", "--dataset", "av2", "--root", outputs["root"], "--out", out),
+                          str(out / prepare_module.STAGE), "--overwrite")  # fmt: skip
+    assert "was replacing" in said
+    result = cli("prepare", "--dataset", "av2", "--root", outputs["root"], "--out", out, "--overwrite",
+                 "--path-points", 20, "--split-file", f"train={outputs['split_file']}")  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "put back the earlier output that an interrupted `cli prepare --overwrite` was replacing" in \
+        result.output  # fmt: skip
+    assert written(out).keys() == written(outputs["new"]).keys()
+    assert frames_by_log(out) == frames_by_log(outputs["new"]) and (out / "notes.txt").is_file()
+    assert not (out / prepare_module.STAGE).exists()
+
+
+def test_an_overwrite_killed_while_preparing_is_named_by_the_next_run(outputs, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(outputs["old"], out)
+    shutil.copytree(outputs["new"] / "frames", out / prepare_module.STAGE / "frames")  # killed part way
+    before = files(out)
+    result = cli("prepare", "--dataset", "av2", "--root", outputs["root"], "--out", out)
+    said = one_error_line(result, str(out / prepare_module.STAGE), "--overwrite", "earlier output is whole")
+    assert (
+        f"delete {out / prepare_module.STAGE} to add to the earlier output" in said and files(out) == before
+    )
+    result = cli("prepare", "--dataset", "av2", "--root", outputs["root"], "--out", out, "--overwrite")
+    assert result.exit_code == 0, result.output
+    assert "removed the unfinished output of an interrupted `cli prepare --overwrite`" in result.output
+    assert frames_by_log(out) == frames_by_log(outputs["old"]) and not (out / prepare_module.STAGE).exists()

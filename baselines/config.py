@@ -38,16 +38,20 @@ BestMetric = Literal[
 @dataclass(frozen=True)
 class Range:
     """The values a numeric config field may take (each element's, in a tuple field): low <= value <= high,
-    `<` at an open end; `increasing`: a tuple's elements strictly increase. The default high end, infinity,
-    is open: NaN and infinity are refused unless a range closes it (train.grad_clip)."""
+    `<` at an open end; `increasing`: a tuple's elements strictly increase. A value must be finite (NaN
+    and +-infinity are refused) unless `infinite` allows an infinite end (train.grad_clip: inf, no
+    clipping)."""
 
     low: float = -math.inf
     high: float = math.inf
     low_open: bool = False
     high_open: bool = True
     increasing: bool = False
+    infinite: bool = False
 
     def holds(self, value: float) -> bool:
+        if not math.isfinite(value) and not (self.infinite and not math.isnan(value)):
+            return False
         above = self.low < value if self.low_open else self.low <= value
         below = value < self.high if self.high_open else value <= self.high
         return above and below
@@ -77,6 +81,7 @@ AT_LEAST_1 = Range(low=1)  # counts and sizes
 POSITIVE = Range(low=0, low_open=True)  # rates, scales, lengths
 FRACTION = Range(0, 1, high_open=True)  # [0, 1): dropout, a cropped share, Adam's betas
 PROBABILITY = Range(0, 1, high_open=False)  # [0, 1]: thresholds on scores, ratios
+FINITE = Range()  # any finite number
 INTERVAL = Range(increasing=True)  # (low, high) of finite numbers
 
 
@@ -113,7 +118,7 @@ class EncoderConfig:
     # its BEV frame, z = ground_z + a x + b y + height (frames.ground_z: about -1.84 in nuScenes' LIDAR_TOP
     # frame, -0.33 under AV2's rear axle; frames.ground_slope (a, b): about (0.006, 0.024) in nuScenes', whose
     # LIDAR_TOP is pitched on the ego, (0, 0) in AV2's).
-    camera_heights: tuple[float, ...] = (-1.5, -0.5, 0.5, 1.5)
+    camera_heights: Annotated[tuple[float, ...], FINITE] = (-1.5, -0.5, 0.5, 1.5)
     # GKT kernel (rows, columns) around each projection
     kernel_size: Annotated[tuple[int, int], AT_LEAST_1] = (3, 5)
     camera_heads: Annotated[int, AT_LEAST_1] = 4
@@ -207,7 +212,8 @@ class TrainConfig:
     warmup_iters: Annotated[int, AT_LEAST_0] = 500
     warmup_ratio: Annotated[float, PROBABILITY] = 1.0 / 3  # warm-up starts at lr * warmup_ratio
     min_lr_ratio: Annotated[float, PROBABILITY] = 1e-3  # cosine decays to lr * min_lr_ratio
-    grad_clip: Annotated[float, Range(low=0, low_open=True, high_open=False)] = 35.0  # inf: no clipping
+    # inf: no clipping
+    grad_clip: Annotated[float, Range(low=0, low_open=True, high_open=False, infinite=True)] = 35.0
     amp: bool = True  # mixed precision on CUDA
     # numpy's seeds are 32-bit and non-negative; each process adds its rank
     seed: Annotated[int, Range(0, 2**31 - 1, high_open=False)] = 0

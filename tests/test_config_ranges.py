@@ -19,11 +19,9 @@ from test_faults import cli, one_error_line
 from baselines.config import PRESETS, Config, DataConfig, EncoderConfig, Range, TrainConfig, apply_overrides
 from baselines.models import HEADS, load_config, resolve_config
 
-# Numeric fields without a range, and why.
-UNRANGED = {
-    # heights above the ground plane: any finite numbers, below it too
-    (EncoderConfig, "camera_heights"),
-}
+# Numeric fields without a range, and why (none: camera_heights, any heights above the ground plane or below
+# it, is finite).
+UNRANGED: set[tuple[type, str]] = set()
 
 
 def sections() -> list[type]:
@@ -75,6 +73,13 @@ def test_every_preset_and_head_is_in_range(preset, model):
         ("lanegap", "train.seed=-1", "must be in [0, 2147483647], not -1"),
         ("lanegap", "encoder.x_range=15,-15", "must be increasing, not (15.0, -15.0)"),
         ("lanegap", "encoder.z_range=-5,inf", "must be finite each, not (-5.0, inf)"),
+        # an unbounded end is no licence for infinity or NaN: a value is finite unless its range says
+        ("lanegap", "encoder.x_range=-inf,15", "must be finite each, not (-inf, 15.0)"),
+        ("lanegap", "encoder.y_range=nan,30", "must be finite each, not (nan, 30.0)"),
+        ("lanegap", "encoder.camera_heights=nan,1", "must be finite each, not (nan, 1.0)"),
+        ("lanegap", "encoder.camera_heights=0,-inf", "must be finite each, not (0.0, -inf)"),
+        ("lanegap", "train.grad_clip=nan", "must be in (0, inf], not nan"),
+        ("lanegap", "train.grad_clip=-inf", "must be in (0, inf], not -inf"),
         ("lanegap", "encoder.kernel_size=3,0", "must be at least 1 each, not (3, 0)"),
         ("lanegap", "encoder.backbone_frozen_stages=5", "must be in [-1, 4], not 5"),
         ("lanegap", "encoder.feature_stride=2", "must be in [4, 32], not 2"),
@@ -168,3 +173,4 @@ def test_cli_train_refuses_an_out_of_range_value_before_any_work(tmp_path):
         "--set train.eval_frames=-5: train.eval_frames must be at least 0, not -5",
     )
     assert sorted(p.name for p in out.iterdir()) == ["config.json", "run.json"]  # nothing written
+

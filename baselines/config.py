@@ -6,7 +6,8 @@ together, `baselines.models.load_config` reads a saved one.
 Every field can be overridden from the command line with `--set section.field=value`
 (e.g. `--set train.lr=3e-4 --set encoder.kernel_size=3,3`); the resolved config is saved with the run.
 A numeric field's valid values stand beside it (`Annotated[int, AT_LEAST_1]`, a `Range`); a value outside
-them is an error naming the field, whichever way it came: a preset, an option, `--set` or a saved config.
+them is an error naming the field, whichever way it came: a preset, an option, `--set` or a saved config;
+so are fields that the model's build needs together (attention heads dividing the channels), once all are set.
 """
 
 from __future__ import annotations
@@ -93,6 +94,15 @@ def range_problem(section: Any, name: str, value: Any) -> str | None:
     return next((problem for bounds in ranges if (problem := bounds.problem(value))), None)
 
 
+def divisible(channels: int, channels_name: str, heads: int, heads_name: str) -> str | None:
+    """Attention splits its channels into equal shares, one per head: a problem naming the two fields,
+    or None."""
+    if channels % heads:
+        return (f"{channels_name} {channels} is not divisible by {heads_name} {heads} (each attention head "
+                "takes an equal share of the channels)")  # fmt: skip
+    return None
+
+
 @dataclass
 class EncoderConfig:
     """The shared BEV encoder: cameras (ResNet + FPN-like neck + GKT) and/or LiDAR pillars."""
@@ -131,6 +141,15 @@ class EncoderConfig:
     # metres above the ground; points outside are dropped
     z_range: Annotated[tuple[float, float], INTERVAL] = (-5.0, 3.0)
     lidar_blocks: Annotated[int, AT_LEAST_0] = 2
+
+    def problem(self) -> str | None:
+        """What the camera branch's build would assert, naming the fields; None when it builds."""
+        if self.modality == "lidar":
+            return None
+        if self.feature_stride not in (4, 8, 16, 32):
+            stride = self.feature_stride
+            return f"encoder.feature_stride must be 4, 8, 16 or 32 (a stage of the backbone), not {stride}"
+        return divisible(self.channels, "encoder.channels", self.camera_heads, "encoder.camera_heads")
 
     def metres_to_unit(self, xy: Any) -> Any:
         """BEV metres (..., 2) -> unit coordinates (u right, v down the rows; (0, 0) = front-left corner)."""
@@ -274,6 +293,16 @@ class Config:
                 if problem:
                     name = f"{section_field.name}.{item.name}"
                     raise ValueError(f"{where}: {name} {problem}" if where else f"{name} {problem}")
+        self.check_across(where)
+
+    def check_across(self, where: str = "") -> None:
+        """What the model's build would assert of fields together (EncoderConfig.problem, the head
+        config's `problem`): the first is a ValueError naming the fields (`where: encoder.channels ...`)."""
+        problem = self.encoder.problem()
+        if problem is None and self.decoder is not None:  # a model's head config
+            problem = self.decoder.problem(self.encoder)
+        if problem:
+            raise ValueError(f"{where}: {problem}" if where else problem)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -408,6 +437,7 @@ def apply_overrides(config: Config, overrides: list[str], option: str = "--set")
     naming `option` and the string (`--set train.epochs=abc: train.epochs expects an integer, ...`)."""
     for item in overrides:
         set_field(config, item, f"{option} {item}")
+    config.check_across(option)  # the fields together, once all are set
     return config
 
 

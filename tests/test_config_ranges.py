@@ -174,3 +174,42 @@ def test_cli_train_refuses_an_out_of_range_value_before_any_work(tmp_path):
     )
     assert sorted(p.name for p in out.iterdir()) == ["config.json", "run.json"]  # nothing written
 
+
+@pytest.mark.parametrize("model", ["lanegap", "maptr", "stsu"])
+def test_fields_that_the_build_needs_together_are_checked_where_the_config_is_built(model, tmp_path):
+    # Before, --set decoder.heads=3 passed and build(config) ended in a bare AssertionError (torch's
+    # MultiheadAttention): now one line naming both fields, by every way a config is built.
+    heads = "encoder.channels 64 is not divisible by decoder.heads 3 (each attention head takes an equal"
+    with pytest.raises(ValueError, match=f"^--set: {re.escape(heads)}"):
+        resolve_config("tiny", model=model, overrides=["decoder.heads=3"])
+    camera = "encoder.channels 64 is not divisible by encoder.camera_heads 3"
+    with pytest.raises(ValueError, match=f"^--set: {camera}"):
+        resolve_config("tiny", model=model, overrides=["encoder.camera_heads=3"])
+    with pytest.raises(ValueError, match=r"^--set: encoder\.feature_stride must be 4, 8, 16 or 32 .* 12$"):
+        resolve_config("tiny", model=model, overrides=["encoder.feature_stride=12"])
+    with pytest.raises(ValueError, match=f"^{re.escape(heads)}"):  # a config built in code
+        config = resolve_config("tiny", model=model)
+        dataclasses.replace(config, decoder=dataclasses.replace(config.decoder, heads=3))
+    values = resolve_config("tiny", model=model).to_dict()
+    values["decoder"]["heads"] = 3
+    path = tmp_path / "config.json"
+    path.write_text(json.dumps(values))
+    with pytest.raises(ValueError, match=f"^{re.escape(str(path))}: {re.escape(heads)}"):
+        load_config(path)
+
+    # checked once every --set is applied: a pair set one field at a time, in either order, is accepted
+    for overrides in (["encoder.channels=48", "decoder.heads=6"], ["decoder.heads=6", "encoder.channels=48"]):
+        config = resolve_config("tiny", model=model, overrides=overrides)
+        assert (config.encoder.channels, config.decoder.heads) == (48, 6)
+    # the camera branch's fields do not bind a LiDAR model, which has none
+    lidar = resolve_config("tiny", model=model, modality="lidar", overrides=["encoder.camera_heads=3"])
+    assert lidar.encoder.camera_heads == 3
+
+
+def test_cli_train_refuses_fields_that_do_not_fit_together_before_any_work(tmp_path):
+    data = write_toy_dataset(tmp_path, frames=6)
+    out = tmp_path / "run"
+    args = ["train", "--data", data, "--out", out, "--preset", "tiny", "--modality", "lidar", "--epochs", 1]
+    error = one_error_line(cli(*args, "--set", "decoder.heads=3"), "encoder.channels 64", "decoder.heads 3")
+    assert error.startswith("error: --set: encoder.channels 64 is not divisible by decoder.heads 3")
+    assert not out.exists()

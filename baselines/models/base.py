@@ -10,7 +10,16 @@ from typing import Annotated
 
 from torch import nn
 
-from baselines.config import AT_LEAST_0, AT_LEAST_1, FRACTION, POSITIVE, PROBABILITY, Range
+from baselines.config import (
+    AT_LEAST_0,
+    AT_LEAST_1,
+    FRACTION,
+    POSITIVE,
+    PROBABILITY,
+    EncoderConfig,
+    Range,
+    divisible,
+)
 
 
 @dataclass
@@ -67,6 +76,10 @@ class QueryHeadConfig:
     focal_alpha: Annotated[float, PROBABILITY] = 0.25
     focal_gamma: Annotated[float, AT_LEAST_0] = 2.0
     score_threshold: Annotated[float, PROBABILITY] = 0.4  # instances kept at inference
+
+    def problem(self, encoder: EncoderConfig) -> str | None:
+        """What the decoder's build would assert of its fields with the encoder's (Config.check_across)."""
+        return divisible(encoder.channels, "encoder.channels", self.heads, "decoder.heads")
 
     @property
     def needs_raster(self) -> bool:

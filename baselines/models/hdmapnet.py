@@ -25,7 +25,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from baselines.config import AT_LEAST_0, AT_LEAST_1, POSITIVE, PROBABILITY, Config
+from baselines.config import AT_LEAST_0, AT_LEAST_1, POSITIVE, PROBABILITY, Config, EncoderConfig
 from baselines.layers.bev_encoder import BEVEncoder, SensorBatch
 from baselines.layers.raster_head import RasterHead, raster_shape
 from baselines.layers.raster_targets import raster_losses
@@ -53,6 +53,10 @@ class HDMapNetConfig:
     # cross-entropy weight of the lane class (HDMapNet's BCE: 2.13)
     lane_class_weight: Annotated[float, AT_LEAST_0] = 1.0
     score_threshold: Annotated[float, PROBABILITY] = 0.5  # lane probability above which a cell is lane
+
+    def problem(self, encoder: EncoderConfig) -> str | None:
+        """None: the convolutional head takes any encoder width (Config.check_across)."""
+        return None
 
 
 # Head sizes for a fair comparison: with the same encoder (camera), as many parameters as LaneGAP

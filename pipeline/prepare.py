@@ -390,10 +390,15 @@ class SplitOptions:
         if self.scheme == "geographic" and self.split_files:
             raise ValueError("--split-scheme geographic and --split-file: the scheme makes the splits, "
                              "the files name them; choose one")  # fmt: skip
-        if not self.geo_cell > 0:
-            raise ValueError(f"--geo-cell must be greater than 0 m, not {self.geo_cell}")
-        if self.geo_buffer is not None and not self.geo_buffer >= 0:
-            raise ValueError(f"--geo-buffer must be 0 m or more, not {self.geo_buffer}")
+        # before any log is indexed; inf and nan pass the command line's ranges
+        if not (np.isfinite(self.geo_cell) and self.geo_cell > 0):
+            raise ValueError(
+                f"--geo-cell must be a finite number of metres greater than 0, not {self.geo_cell}"
+            )
+        if self.geo_buffer is not None and not (np.isfinite(self.geo_buffer) and self.geo_buffer >= 0):
+            raise ValueError(
+                f"--geo-buffer must be a finite number of metres, 0 or more, not {self.geo_buffer}"
+            )
         if self.geo_buffer is None:
             self.geo_buffer = reach(options.bev_range)
 

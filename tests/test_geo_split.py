@@ -335,3 +335,24 @@ def _frames(data) -> list[dict]:
     from pipeline.io import read_table
 
     return read_table(data, "frames", columns=["split", "city"]).to_pylist()
+
+
+@pytest.mark.parametrize(
+    "option, value", [("--geo-buffer", "inf"), ("--geo-buffer", "nan"), ("--geo-buffer", "-1"),
+                      ("--geo-cell", "inf"), ("--geo-cell", "nan"), ("--geo-cell", "-5")],
+)  # fmt: skip
+def test_a_geo_option_that_is_not_a_finite_length_is_refused_before_any_log_is_indexed(
+    one_frame_logs, tmp_path, monkeypatch, option, value
+):
+    import pipeline.prepare
+
+    monkeypatch.setattr(pipeline.prepare, "index_jobs", lambda jobs: pytest.fail("logs were indexed"))
+    out = tmp_path / "geo"
+    result = CliRunner().invoke(app, ["prepare", "--dataset", "av2", "--root", str(one_frame_logs), "--out",
+                                      str(out), "--split-scheme", "geographic", option, value])  # fmt: skip
+    assert result.exit_code in (1, 2), result.output  # 2: the command line's own range check
+    said = [line for line in result.output.splitlines() if option in line]
+    assert said and "cell_m" not in result.output and "Traceback" not in result.output, result.output
+    if result.exit_code == 1:  # ours, in one line with the value
+        assert [line for line in said if line.startswith("error:") and value in line] == said, said
+    assert not out.exists()

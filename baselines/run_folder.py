@@ -1,6 +1,6 @@
 """A training run's folder, RUN_DIR: config.json, run.json, log.jsonl, val.jsonl, tb/ (TensorBoard) and the
 checkpoints (baselines/checkpoint.py), for a new run or one resumed, and the files `cli eval` adds
-(RUN_FILES, the one list of them); only rank 0 writes.
+(RUN_FOLDER_FILES, the one list of them); only rank 0 writes.
 
 A folder never mixes two runs: a new run starts only in a folder without a run's files, or with
 --overwrite, which removes them all first. A resume goes on with the config its checkpoint was trained
@@ -40,7 +40,8 @@ console = Console(stderr=True)
 TRAINING_FILES = ("config.json", "run.json", "log.jsonl", "val.jsonl", "tb",
                   CHECKPOINT, PREVIOUS, DAMAGED, BEST)  # fmt: skip
 EVALUATION_FILES = ("predictions.parquet", FRAME_COUNTS, "metrics.json")  # benchmark/score.py write_run
-RUN_FILES = TRAINING_FILES + EVALUATION_FILES  # every file of a run folder, as `cli train --overwrite` knows
+# every file a run folder holds (the one list): `cli train --overwrite` removes them, and refuses without it
+RUN_FOLDER_FILES = TRAINING_FILES + EVALUATION_FILES
 EVENTS = "events.out.tfevents.*"  # TensorBoard's files, in tb/
 
 
@@ -57,14 +58,14 @@ def half_written(path: Path, name: str) -> list[Path]:
 
 
 def held_files(path: Path) -> list[str]:
-    """The names of RUN_FILES that `path` holds, or holds half-written."""
-    return [name for name in RUN_FILES if (path / name).exists() or half_written(path, name)]
+    """The names of RUN_FOLDER_FILES that `path` holds, or holds half-written."""
+    return [name for name in RUN_FOLDER_FILES if (path / name).exists() or half_written(path, name)]
 
 
 def remove_run_files(path: Path) -> None:
-    """Every file that a run or `cli eval` writes in `path` (RUN_FILES, their half-written temporaries, the
-    event files of tb/); anything else in the folder is the user's and stays."""
-    for name in RUN_FILES:
+    """Every file that a run or `cli eval` writes in `path` (RUN_FOLDER_FILES, their half-written
+    temporaries, the event files of tb/); anything else in the folder is the user's and stays."""
+    for name in RUN_FOLDER_FILES:
         for tmp in half_written(path, name):
             tmp.unlink()
         target = path / name

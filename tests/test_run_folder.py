@@ -21,7 +21,7 @@ from baselines import train as train_module
 from baselines.checkpoint import CheckpointError, load_checkpoint, peek, rng_state
 from baselines.evaluate import evaluate
 from baselines.models import load_config
-from baselines.run_folder import RUN_FILES, ConfigChange, config_changes
+from baselines.run_folder import RUN_FOLDER_FILES, ConfigChange, config_changes
 from baselines.train import lr_factor, setup, train
 from pipeline.manifest import PreparedData
 
@@ -55,8 +55,8 @@ def test_overwrite_removes_every_file_of_the_earlier_run_and_resume_never_loads_
     evaluate(run, device="cpu", floor=False, bootstrap=0)
     (run / "notes.txt").write_text("the user's")
     written = {path.name for path in run.iterdir()} - {"notes.txt"}
-    # RUN_FILES knows every file of a run and its evaluation: --overwrite removes them all
-    assert written <= set(RUN_FILES)
+    # RUN_FOLDER_FILES knows every file of a run and its evaluation: --overwrite removes them all
+    assert written <= set(RUN_FOLDER_FILES)
     expected = {"checkpoint.pt", "checkpoint.prev.pt", "best.pt", "tb", "metrics.json", "predictions.parquet",
                 "frame_counts.parquet", "log.jsonl", "val.jsonl"}  # fmt: skip
     assert expected <= written

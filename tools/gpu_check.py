@@ -100,7 +100,7 @@ SMOKE_DATA = {
     "val-frames-per-log": 2,
     "val-frame-period": 1.0,
 }
-RUN_FILES = ("metrics.json", "run.json")  # a run's files in runs.tar.gz
+EXPORTED_RUN_FILES = ("metrics.json", "run.json")  # a run's files in runs.tar.gz
 LAST_LINES = 20  # of a failed command's output, kept in summary.json: its error and what led to it
 
 console = Console()
@@ -279,8 +279,8 @@ def export_runs(runs: Path, results: Path) -> Path:
     archive, partial = results / "runs.tar.gz", results / "runs.tar.gz.partial"
     with tarfile.open(partial, "w:gz") as tar:
         for run in sorted(path for path in (runs.iterdir() if runs.is_dir() else ()) if path.is_dir()):
-            if all((run / name).is_file() for name in RUN_FILES):
-                for name in RUN_FILES:
+            if all((run / name).is_file() for name in EXPORTED_RUN_FILES):
+                for name in EXPORTED_RUN_FILES:
                     tar.add(run / name, arcname=f"runs/{run.name}/{name}")
     os.replace(partial, archive)
     return archive

@@ -23,7 +23,8 @@ from benchmark.metric import bootstrap
 from pipeline.splits.plan import split_file_digests
 
 METHOD_NAMES = {"lanegap": "LaneGAP", "maptr": "MapTR", "stsu": "STSU", "hdmapnet": "HDMapNet"}
-RUN_FILES = ("metrics.json", "config.json", "run.json", "checkpoint.pt", "log.jsonl", "predictions.parquet")
+# files that mark a folder as one run folder (else it is a folder of runs); a run folder holds more
+RUN_MARKERS = ("metrics.json", "config.json", "run.json", "checkpoint.pt", "log.jsonl", "predictions.parquet")
 REQUIRED = ("frames", "directed", "undirected", "metric_params", "params", "fps_net", "fps", "split", "data")
 MEASURED = ("params", "fps_net", "fps")  # null only in an external run's metrics.json (not measured here)
 # an external run (`cli score --out RUN_DIR`: another codebase's result file, metrics.json's "external")
@@ -284,13 +285,13 @@ def find_runs(paths: list[Path]) -> list[Path]:
     for path in map(Path, paths):
         if not path.is_dir():
             raise FileNotFoundError(f"{path}: no such run folder")
-        if any((path / name).exists() for name in RUN_FILES):
+        if any((path / name).exists() for name in RUN_MARKERS):
             found.append(path)
             continue
         inner = sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
         if not inner:
             raise ValueError(
-                f"{path}: neither a run folder (no {', '.join(RUN_FILES[:3])}) nor a folder of runs"
+                f"{path}: neither a run folder (no {', '.join(RUN_MARKERS[:3])}) nor a folder of runs"
             )
         found += inner
     unique = {p.resolve(): p for p in found}

@@ -280,3 +280,33 @@ def test_a_model_that_fails_does_not_stop_the_gpu_check(tmp_path, monkeypatch):
             f"error: {no_data / 'frames'}: no such table (is {no_data} a prepared dataset?)"
         )
     assert [row["topo"] for row in summary["rows"]] == [0.6, 0.4, 0.3]
+
+
+def test_the_gpu_check_names_only_the_files_it_wrote_when_every_model_fails(tmp_path, monkeypatch):
+    """Every model's training fails: no run finished, so no report is made, and the closing line names
+    summary.json alone (it said `wrote .../report/report.md` before, a file that did not exist)."""
+    import io
+    import sys
+
+    from rich.console import Console
+
+    from tools import gpu_check
+
+    def cli(*args: str) -> None:
+        if args[0] == "train":
+            raise gpu_check.CommandFailed(" ".join(args), 1, ["error: out of memory"])
+        assert args[0] in ("synth", "prepare"), args  # no eval and no report without a finished run
+        Path(args[2]).mkdir(parents=True)  # their --out, as they make it
+
+    shown = io.StringIO()
+    monkeypatch.setattr(gpu_check, "cli", cli)
+    monkeypatch.setattr(gpu_check, "PHASES", [])
+    monkeypatch.setattr(gpu_check, "console", Console(file=shown, width=1000))
+    out = tmp_path / "out"
+    monkeypatch.setattr(sys, "argv", ["gpu_check", "--smoke", "--out", str(out), "--workers", "1"])
+    assert gpu_check.main() == 1
+    assert not (out / "report").exists()
+    (wrote,) = [line for line in shown.getvalue().splitlines() if line.startswith("wrote ")]
+    assert wrote == f"wrote {out / 'summary.json'}"
+    summary = json.loads((out / "summary.json").read_text())
+    assert [failure["stage"] for failure in summary["failures"]] == ["lanegap", "hdmapnet", "maptr", "stsu"]

@@ -399,8 +399,9 @@ def main() -> int:
         write_json(results / "summary.json", final)
         if (out / "report" / "report.md").is_file():  # else the smoke's failures below say so
             shutil.copy(out / "report" / "report.md", results / "report.md")
-    console.print(f"wrote {out / 'runs'}, {out / 'report' / 'report.md'} and {out / 'summary.json'}"
-                  + (f"; copied into {results}" if results else ""))  # fmt: skip
+    written = [path for path in (out / "runs", out / "report" / "report.md") if path.exists()]
+    written = ", ".join(map(str, written + [out / "summary.json"]))  # what exists: no report without runs
+    console.print(f"wrote {written}" + (f"; copied into {results}" if results else ""))
     if args.smoke:
         missing = smoke_failures(out, rows)
         for what in missing:

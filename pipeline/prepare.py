@@ -35,6 +35,7 @@ from pipeline.splits.plan import (
     plan_from_files,
     read_split_files,
     split_file_digests,
+    split_name_digests,
 )
 from pipeline.targets import FrameTargets, TargetOptions, flat_pose, frame_targets, warm_up
 
@@ -51,6 +52,9 @@ STAGE = ".overwrite"
 ASIDE_PARTLY, ASIDE = ".earlier-partly", ".earlier"
 # what manifest.json holds of the summary beside its last_run: measured over the whole folder, or the plan's
 BESIDE_LAST_RUN = ("leakage", "split_shares")
+# manifest parameters that another run need not match: --split picks what to add, and the names' digest
+# follows from the contents' (split_file_sha256), which are compared (and absent from older manifests)
+NOT_COMPARED = ("split", "split_file_names_sha256")
 
 
 @dataclass(frozen=True)
@@ -504,6 +508,7 @@ def manifest_parameters(options: TargetOptions, frame_stride: int, splits: Split
             name: str(Path(path).resolve()) for name, path in splits.split_files.items()
         }
         parameters["split_file_sha256"] = split_file_digests(splits.split_files)
+        parameters["split_file_names_sha256"] = split_name_digests(splits.split_files)
     if splits.scheme == "geographic":
         parameters |= {"geo_cell": splits.geo_cell, "geo_buffer": splits.geo_buffer,
                        "geo_seed": splits.geo_seed}  # fmt: skip
@@ -541,7 +546,7 @@ def check_manifest(
     old = {"dataset": before.get("dataset"), "root": before.get("root"), "version": before.get("version"),
            "split_scheme": "original", **before.get("parameters", {})}  # fmt: skip
     new = {"dataset": dataset, "root": str(root), "version": recorded_version(dataset, version), **parameters}
-    differing = [key for key in {**old, **new} if key != "split" and old.get(key) != new.get(key)]
+    differing = [key for key in {**old, **new} if key not in NOT_COMPARED and old.get(key) != new.get(key)]
     if "split_files" in differing or "split_file_sha256" not in old:
         differing = [key for key in differing if key != "split_file_sha256"]  # said by the paths, or unknown
     if differing:

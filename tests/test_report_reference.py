@@ -235,17 +235,61 @@ def test_streammapnets_split_files_are_told_by_their_names_and_get_tab_newsplit(
     mine = {"train": tmp_path / "mine_train.txt", "val": val}
     recorded = {split: hashlib.sha256(path.read_bytes()).hexdigest() for split, path in mine.items()}
     assert split_of("nuscenes", mine, recorded).kind is SplitKind.STREAMMAPNET
-    # (even to the same names in another order: the file prepared from is not the one here)
+    # (even to the same names in another order: the file prepared from is not the one here); such a
+    # manifest, from before the names' digest was recorded, cannot tell whose split it is
     (tmp_path / "mine_train.txt").write_text("\n".join(names) + "\n")
     edited = split_of("nuscenes", mine, recorded)
-    assert edited.kind is SplitKind.SPLIT_FILES
+    assert edited.kind is SplitKind.UNSURE_FILES
     assert edited.describe() == (
-        "your split files (`--split-file` train=mine_train.txt, val=nuscenes_geo_val.txt; mine_train.txt "
-        "changed since `cli prepare`)"
+        "split files of unknown provenance (`--split-file` train=mine_train.txt, val=nuscenes_geo_val.txt; "
+        "mine_train.txt changed since `cli prepare`, and manifest.json, from an earlier version, records no "
+        "digest of their names)"
     )
-    # files gone since `cli prepare`: whose they were is unknown, so they are the user's
+    # files gone since `cli prepare`: whose they were is unknown
     gone = split_of("nuscenes", {"train": tmp_path / "gone_train.txt", "val": val})
-    assert gone.kind is SplitKind.SPLIT_FILES and "gone_train.txt not found" in gone.describe()
+    assert gone.kind is SplitKind.UNSURE_FILES and "gone_train.txt not found" in gone.describe()
+
+
+def test_the_split_is_told_from_the_manifest_where_the_split_files_are_gone(synth_raw, tmp_path):
+    """cli prepare records the digest of each split file's names, so that a report made where the files
+    are not (another machine) still tells StreamMapNet's split from the user's; a manifest without it
+    (an earlier version) is never taken for StreamMapNet's when the files are gone."""
+    from benchmark.report.runs import STREAMMAPNET_SPLITS, DataSplit, SplitKind
+    from pipeline.manifest import read_manifest
+    from pipeline.prepare import prepare
+    from pipeline.targets import TargetOptions
+
+    def prepared_then_gone(dataset: str, root: Path, files: dict[str, Path], **options) -> dict:
+        copies = {split: tmp_path / f"{dataset}_{path.name}" for split, path in files.items()}
+        for split, path in files.items():
+            copies[split].write_text("# a copy\n" + path.read_text())
+        prepare(dataset, root, tmp_path / dataset, TargetOptions(), frame_stride=10, split_files=copies,
+                **options)  # fmt: skip
+        for path in copies.values():
+            path.unlink()
+        return read_manifest(tmp_path / dataset)
+
+    av2 = synth_raw / "av2" / "sensor"
+    (tmp_path / "one_log.txt").write_text(sorted(p.name for p in (av2 / "train").iterdir())[0] + "\n")
+    manifest = prepared_then_gone("av2", av2, {"train": tmp_path / "one_log.txt"})
+    mine = DataSplit.of(manifest)
+    assert mine.kind is SplitKind.SPLIT_FILES and mine.describe() == (
+        "your split files (`--split-file` train=av2_one_log.txt)"
+    )
+    theirs = {split: require_split_file(f"nuscenes_geo_{split}.txt") for split in ("train", "val")}
+    manifest = prepared_then_gone("nuscenes", synth_raw / "nuscenes", theirs, version="v1.0-mini")
+    assert manifest["parameters"]["split_file_names_sha256"] == STREAMMAPNET_SPLITS["nuscenes"]
+    split = DataSplit.of(manifest)
+    assert split.kind is SplitKind.STREAMMAPNET and split.describe() == (
+        "StreamMapNet's geographically disjoint split (`--split-file` train=nuscenes_nuscenes_geo_train.txt, "
+        "val=nuscenes_nuscenes_geo_val.txt)"
+    )
+    # the same manifest as an earlier version wrote it: the files gone, whose split it is is unknown
+    del manifest["parameters"]["split_file_names_sha256"]
+    earlier = DataSplit.of(manifest)
+    assert earlier.kind is SplitKind.UNSURE_FILES
+    assert "nuscenes_nuscenes_geo_train.txt not found, nuscenes_nuscenes_geo_val.txt not found" in \
+        earlier.describe()  # fmt: skip
 
 
 def require_split_file(name: str) -> Path:

@@ -9,7 +9,6 @@ working directory (`shown`).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from dataclasses import dataclass, field
@@ -20,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.metric import bootstrap
-from pipeline.splits.plan import split_file_digests
+from pipeline.splits.plan import split_file_digests, split_names_digest
 
 METHOD_NAMES = {"lanegap": "LaneGAP", "maptr": "MapTR", "stsu": "STSU", "hdmapnet": "HDMapNet"}
 # files that mark a folder as one run folder (else it is a folder of runs); a run folder holds more
@@ -49,6 +48,9 @@ class SplitKind(Enum):
     STREAMMAPNET = "StreamMapNet's geographically disjoint split"  # the paper's new split (tab:newsplit)
     GEOGRAPHIC = "the geographic scheme"  # --split-scheme geographic
     SPLIT_FILES = "your split files"  # --split-file naming other splits than StreamMapNet's
+    # --split-file, in a manifest from before the names' digest was recorded, whose files are gone or
+    # changed: whose split it is cannot be told
+    UNSURE_FILES = "split files of unknown provenance"
     UNKNOWN = "an unknown split"  # the data (its manifest.json) is not found
 
 
@@ -59,15 +61,17 @@ class DataSplit:
 
     kind: SplitKind
     files: dict[str, Path] = field(default_factory=dict)
-    # the split files gone or changed since `cli prepare` (their sha256 in the manifest), in words: what
-    # the data was split by is then unknown beyond their names
+    # UNSURE_FILES: the split files gone or changed since `cli prepare`, in words
     unsure: tuple[str, ...] = ()
     geographic: tuple[float, float, int] | None = None  # cell and buffer in metres, seed
 
     @classmethod
     def of(cls, manifest: dict) -> DataSplit:
         """Read from a manifest (`cli prepare`'s parameters); {} (data not found) gives UNKNOWN. A manifest
-        written before the split scheme was recorded is on the original scheme, as `cli prepare` reads it."""
+        written before the split scheme was recorded is on the original scheme, as `cli prepare` reads it.
+        Split files are told by the digest of their names that `cli prepare` recorded
+        (split_file_names_sha256), wherever the files are now; a manifest from before that has only the
+        files themselves, read if they are here as prepared, and is UNSURE_FILES if not."""
         if not manifest:
             return cls(SplitKind.UNKNOWN)
         parameters = manifest.get("parameters", {})
@@ -77,12 +81,15 @@ class DataSplit:
         files = {split: Path(path) for split, path in (parameters.get("split_files") or {}).items()}
         if not files:
             return cls(SplitKind.ORIGINAL)
-        unsure = unsure_files(files, parameters.get("split_file_sha256") or {})
         theirs = STREAMMAPNET_SPLITS.get(manifest.get("dataset"), {})
-        if not unsure and files.keys() == theirs.keys():
-            if all(split_names_digest(path) == theirs[split] for split, path in files.items()):
-                return cls(SplitKind.STREAMMAPNET, files)
-        return cls(SplitKind.SPLIT_FILES, files, unsure)
+        names = parameters.get("split_file_names_sha256")
+        if names is None:  # an earlier manifest: the files, if they are those it was prepared from
+            unsure = unsure_files(files, parameters.get("split_file_sha256") or {})
+            if unsure:
+                return cls(SplitKind.UNSURE_FILES, files, unsure)
+            names = {split: split_names_digest(path) for split, path in files.items()}
+        kind = SplitKind.STREAMMAPNET if names == theirs else SplitKind.SPLIT_FILES
+        return cls(kind, files)
 
     def describe(self) -> str:
         """The split in words, with the option that made it: "the geographic scheme (`--split-scheme
@@ -93,14 +100,19 @@ class DataSplit:
                     f"{metres(buffer)} buffer, seed {seed if seed is not None else '?'})")  # fmt: skip
         if self.files:
             named = ", ".join(f"{split}={path.name}" for split, path in self.files.items())
-            unsure = f"; {', '.join(self.unsure)}" if self.unsure else ""
+            unsure = (
+                f"; {', '.join(self.unsure)}, and manifest.json, from an earlier version, records no digest "
+                "of their names"
+                if self.unsure
+                else ""
+            )
             return f"{self.kind.value} (`--split-file` {named}{unsure})"
         return self.kind.value
 
 
 def unsure_files(files: dict[str, Path], recorded: dict[str, str]) -> tuple[str, ...]:
     """The split files gone or changed since `cli prepare` recorded their sha256 (`recorded`, {split:
-    sha256}; a manifest from before has none, and its files are taken as they are), in words."""
+    sha256}; a manifest from before those has none, and its files are taken as they are), in words."""
     unsure = []
     for split, path in files.items():
         if not path.is_file():
@@ -113,14 +125,6 @@ def unsure_files(files: dict[str, Path], recorded: dict[str, str]) -> tuple[str,
 def metres(value: float | None) -> str:
     """A length as a heading names it: "100 m", "67.1 m"."""
     return "? m" if value is None else f"{round(value, 1):g} m"
-
-
-def split_names_digest(path: Path) -> str:
-    """sha256 of the names a split file holds (blank lines and # comments left out, as `cli prepare` reads
-    them), sorted and joined by newlines."""
-    lines = (line.strip() for line in Path(path).read_text().splitlines())
-    names = sorted({line for line in lines if line and not line.startswith("#")})
-    return hashlib.sha256("\n".join(names).encode()).hexdigest()
 
 
 @dataclass

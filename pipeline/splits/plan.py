@@ -55,6 +55,22 @@ def split_file_digests(split_files: dict[str, Path]) -> dict[str, str]:
     return digests
 
 
+def split_names_digest(path: Path) -> str:
+    """sha256 of the names a split file holds (blank lines and # comments left out, as read_split_files
+    reads them), sorted and joined by newlines: the same split whatever the order, comments or copy."""
+    lines = (line.strip() for line in Path(path).read_text().splitlines())
+    names = sorted({line for line in lines if line and not line.startswith("#")})
+    return hashlib.sha256("\n".join(names).encode()).hexdigest()
+
+
+def split_name_digests(split_files: dict[str, Path]) -> dict[str, str]:
+    """{split: split_names_digest of its file}: what the manifest records, so that `cli report` can tell
+    whose split the data is on (StreamMapNet's) where the files are not (another machine)."""
+    for split, path in split_files.items():
+        check_split_file(split, path)
+    return {split: split_names_digest(path) for split, path in split_files.items()}
+
+
 def read_split_files(split_files: dict[str, Path]) -> list[SplitLine]:
     """The named lines of one file per split (blank lines and # comments left out), e.g. the geographically
     disjoint splits of StreamMapNet. A line in two files is an error."""

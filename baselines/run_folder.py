@@ -182,7 +182,8 @@ class RunFolder:
         self.path, self.master = path, master
         self.log_file = self.val_file = self.events = None
         self.writer = CheckpointWriter()
-        self.last_checkpoint: tuple[Path, int] | None = None  # (file, step) of the last one written
+        # (file, step, fp16 loss scale or None) of the last one written or resumed from
+        self.last_checkpoint: tuple[Path, int, float | None] | None = None
         self.best: Best | None = None  # what best.pt holds, or None: the next validation is the best
         self.resumed_from: Path | None = None  # the checkpoint file a resume loaded
         self.changes: list[ConfigChange] = []  # the config fields a resume changes
@@ -229,7 +230,7 @@ class RunFolder:
         written repaired), or started anew when this run validates otherwise; the log and validation lines
         of steps after the checkpoint (an interrupted epoch) dropped."""
         step = checkpoint["step"]
-        self.last_checkpoint = (self.resumed_from, step)
+        self.last_checkpoint = (self.resumed_from, step, checkpoint["scaler"].get("scale"))
         recorded = checkpoint.get("best") or {}
         self.best = Best.from_record(recorded)
         if self.master:
@@ -337,7 +338,7 @@ class RunFolder:
         and then run.json's best: written on the writer's thread, in that order, so that run.json never
         names a best that best.pt does not hold."""
         path = self.path / CHECKPOINT
-        self.last_checkpoint = (path, state["step"])
+        self.last_checkpoint = (path, state["step"], state["scaler"].get("scale"))  # {} without fp16
         if not self.master:
             return
         if best:

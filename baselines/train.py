@@ -484,8 +484,16 @@ def stop_if_diverged(s: Setup, run: RunFolder, step: Step) -> None:
                   "once the scale is down to 1)")  # fmt: skip
         change = "--set train.amp=false (fp32) or " + change
     last = run.last_checkpoint
-    go_on = (f"the last good checkpoint is {last[0]} (step {last[1]}): --resume from it with {change}" if last
-             else f"no checkpoint was written yet: start again (--overwrite) with {change}")  # fmt: skip
+    if last is None:
+        go_on = f"no checkpoint was written yet: start again (--overwrite) with {change}"
+    elif step.overflow and last[2] is not None:
+        # a checkpoint saved during the overflows holds good weights (a skipped step leaves them) but the
+        # scale they brought down: under fp16 a resume goes on from that scale and overflows at once
+        at_once = ", at which fp16 overflows at once" if last[2] <= 1 else ""
+        go_on = (f"the last checkpoint is {last[0]} (step {last[1]}; its weights are good, its loss scale "
+                 f"{last[2]:g}{at_once}): --resume from it with {change}")  # fmt: skip
+    else:
+        go_on = f"the last good checkpoint is {last[0]} (step {last[1]}): --resume from it with {change}"
     raise TrainingStopped(
         f"step {trainer.step}: {trainer.bad_in_a_row} steps in a row with a non-finite loss or gradient norm "
         f"(--max-bad-steps {limit}; not finite at this step: {where}), none of them applied; {go_on}"

@@ -384,8 +384,14 @@ def test_fp16_overflows_that_never_end_stop_the_run_in_one_line(tmp_path, monkey
     message = str(stopped.value)
     assert message.startswith("step 7: 3 steps in a row with a non-finite loss or gradient norm")
     assert "not finite at this step: grad_norm (fp16 gradients overflowing at a loss scale of 0.25" in message
-    assert f"the last good checkpoint is {tmp_path / 'run' / 'checkpoint.pt'} (step 6)" in message
-    assert "--resume from it with --set train.amp=false (fp32)" in message and "\n" not in message
+    # step 6's checkpoint was saved amid the overflows: its weights are step 2's, its loss scale the 0.25 they
+    # brought it down to, which a resume under fp16 would go on from (before, it was called the last good one)
+    checkpoint = tmp_path / "run" / "checkpoint.pt"
+    assert load_checkpoint(checkpoint)["scaler"]["scale"] == 0.25
+    assert (f"the last checkpoint is {checkpoint} (step 6; its weights are good, its loss scale 0.25, at "
+            "which fp16 overflows at once): --resume from it with --set train.amp=false (fp32) or another "
+            "--set train.lr=...") in message  # fmt: skip
+    assert "good checkpoint" not in message and "\n" not in message
     skipped = [r for r in map(json.loads, logged_lines(tmp_path / "run" / "log.jsonl")) if "skipped" in r]
     assert [(r["step"], r["skipped"]) for r in skipped] == [(n, "fp16 overflow") for n in range(3, 8)]
     assert all(np.isfinite(r["loss"]) and not np.isfinite(r["grad_norm"]) for r in skipped)

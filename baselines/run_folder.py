@@ -31,7 +31,7 @@ from baselines.checkpoint import (
     peek,
     resume_checkpoint,
 )
-from baselines.config import Config
+from baselines.config import Config, TrainConfig
 from benchmark.metric.bootstrap import FRAME_COUNTS
 from pipeline import io
 from pipeline.manifest import PreparedData
@@ -110,9 +110,15 @@ class Best:
                     train.val_split, train.eval_frames, train.seed)  # fmt: skip
 
     @staticmethod
-    def from_record(record: dict) -> Best | None:
-        """A checkpoint's record of it; None when empty or when it does not say how it was measured."""
+    def from_record(record: dict, trained: dict | None = None) -> Best | None:
+        """A checkpoint's record of it; None when empty or when it does not say how it was measured. A
+        record of an earlier version (metric, value, epoch and step only) was measured as the config the
+        checkpoint was trained with (`trained`, its "config") validates: its split, frames and seed."""
         names = {field.name for field in dataclasses.fields(Best)}
+        if trained is not None and set(record) == {"metric", "value", "epoch", "step"}:
+            train = {**dataclasses.asdict(TrainConfig()), **trained.get("train", {})}  # older: defaults
+            record = {**record, "split": train["val_split"], "eval_frames": train["eval_frames"],
+                      "seed": train["seed"]}  # fmt: skip
         return Best(**record) if set(record) == names else None
 
     def measured(self) -> str:
@@ -227,12 +233,13 @@ class RunFolder:
     def resumed(self, checkpoint: dict, config: Config) -> None:
         """The run goes on from `checkpoint` (loaded into the trainer) with `config`: config.json and the
         changes in run.json; best.pt and run.json's best as the checkpoint has them (a kill while they were
-        written repaired), or started anew when this run validates otherwise; the log and validation lines
+        written repaired; an earlier version's record completed by Best.from_record), or started anew when
+        this run validates otherwise; the log and validation lines
         of steps after the checkpoint (an interrupted epoch) dropped."""
         step = checkpoint["step"]
         self.last_checkpoint = (self.resumed_from, step, checkpoint["scaler"].get("scale"))
-        recorded = checkpoint.get("best") or {}
-        self.best = Best.from_record(recorded)
+        self.best = Best.from_record(checkpoint.get("best") or {}, checkpoint.get("config"))
+        recorded = self.best_record() or checkpoint.get("best") or {}  # an earlier version's, completed
         if self.master:
             self.write_config(config, step)
             self.repair_best(checkpoint, recorded)

@@ -18,7 +18,7 @@ from test_baselines_train import toy_config, write_toy_dataset
 from test_faults import cli, files, one_error_line
 
 from baselines import train as train_module
-from baselines.checkpoint import CheckpointError, load_checkpoint, peek, rng_state
+from baselines.checkpoint import CheckpointError, load_checkpoint, peek, rng_state, save_checkpoint
 from baselines.evaluate import evaluate
 from baselines.models import load_config
 from baselines.run_folder import RUN_FOLDER_FILES, ConfigChange, config_changes
@@ -206,6 +206,35 @@ def test_run_json_names_a_best_only_once_best_pt_holds_it_and_resume_repairs_a_k
     train(load_config(run / "config.json"), toy_data, run, resume=True)  # every epoch done: repairs only
     assert peek(run / "best.pt") == {"step": 2, "sha256": checkpoint["sha256"]}
     assert run_json(run)["best"] == checkpoint["best"]
+
+
+def test_a_plain_resume_of_a_run_from_before_the_best_recorded_how_it_was_measured_keeps_its_best(
+    toy_data, tmp_path, capsys
+):
+    """A checkpoint, best.pt and run.json of the earlier version: their best is metric, value, epoch and
+    step only. Its split, frames and seed are those of the config the checkpoint was trained with, so a plain
+    resume keeps it (before, it restarted the best and the next validation replaced best.pt, even a worse
+    one). The recorded value, 2, is above any F1: no validation may replace it."""
+    run = tmp_path / "run"
+    config = validated_config(epochs=2)
+    train(config, toy_data, run, stop_after=1)
+    old = {"metric": config.train.best_metric, "value": 2.0, "epoch": 1, "step": 2}
+    state = {k: v for k, v in load_checkpoint(run / "checkpoint.pt").items() if k != "sha256"}
+    assert set(state["best"]) == {"metric", "value", "epoch", "step", "split", "eval_frames", "seed"}
+    (run / "checkpoint.pt").unlink()
+    save_checkpoint({**state, "best": old}, run / "checkpoint.pt")
+    shutil.copyfile(run / "checkpoint.pt", run / "best.pt")
+    (run / "run.json").write_text(json.dumps({**run_json(run), "best": old}))
+    capsys.readouterr()
+
+    train(load_config(run / "config.json"), toy_data, run, resume=True)
+    assert "starts anew" not in capsys.readouterr().err
+    record = run_json(run)
+    kept = {**old, "split": "train", "eval_frames": 0, "seed": 0}
+    assert "best_restarts" not in record and record["best"] == record["summary"]["best"] == kept
+    assert [json.loads(line)["step"] for line in (run / "val.jsonl").read_text().splitlines()] == [2, 4]
+    assert peek(run / "best.pt")["step"] == 2  # step 4's validation did not replace it
+    assert load_checkpoint(run / "checkpoint.pt")["best"] == kept
 
 
 def test_a_resume_on_fewer_or_more_processes_than_saved_the_checkpoint_is_refused(toy_data):

@@ -15,7 +15,7 @@ import pyarrow.feather as feather
 import pytest
 from typer.testing import CliRunner
 
-import pipeline.prepare as prepare_module
+import pipeline.manifest as output_folder
 from cli import app
 from pipeline.io import read_table
 from pipeline.prepare import prepare
@@ -204,7 +204,7 @@ def test_another_root_or_version_is_refused(raw, tmp_path):
 
 
 def failing_replace(at: int, error: BaseException, calls: list[int], for_good: bool = False):
-    """pipeline.prepare's os with a replace that raises `error` at its `at`-th call (and every later one
+    """pipeline.manifest's os with a replace that raises `error` at its `at`-th call (and every later one
     `for_good`), counting in `calls`, and renames otherwise."""
     import os
 
@@ -219,7 +219,7 @@ def failing_replace(at: int, error: BaseException, calls: list[int], for_good: b
 
 def written(folder: Path) -> dict[str, bytes]:
     """The files `cli prepare` writes in `folder`, by path, with their bytes."""
-    return {str(p.relative_to(folder)): p.read_bytes() for p in prepare_module.written_files(folder)}
+    return {str(p.relative_to(folder)): p.read_bytes() for p in output_folder.written_files(folder)}
 
 
 @pytest.fixture(scope="module")
@@ -238,7 +238,7 @@ def outputs(raw, tmp_path_factory) -> dict[str, Path]:
 
 def staged(outputs: dict[str, Path], out: Path) -> None:
     shutil.copytree(outputs["old"], out)
-    shutil.copytree(outputs["new"], out / prepare_module.STAGE)
+    shutil.copytree(outputs["new"], out / output_folder.STAGE)
 
 
 def test_moving_in_interrupted_at_any_file_leaves_the_old_or_the_new_output_whole(
@@ -252,11 +252,11 @@ def test_moving_in_interrupted_at_any_file_leaves_the_old_or_the_new_output_whol
         calls: list[int] = []
         # killed at the at-th rename: nothing of the run's own runs after it
         with monkeypatch.context() as patch:
-            patch.setattr(prepare_module, "os", failing_replace(at, KeyboardInterrupt(), calls))
+            patch.setattr(output_folder, "os", failing_replace(at, KeyboardInterrupt(), calls))
             with pytest.raises(KeyboardInterrupt):
-                prepare_module.move_in(out / prepare_module.STAGE, out)
+                output_folder.move_in(out / output_folder.STAGE, out)
         assert len(calls) == at
-        assert (out / prepare_module.STAGE).is_dir()
+        assert (out / output_folder.STAGE).is_dir()
         # a run without --overwrite is refused in one line, and changes nothing
         before = files(out)
         with pytest.raises(
@@ -265,7 +265,7 @@ def test_moving_in_interrupted_at_any_file_leaves_the_old_or_the_new_output_whol
             prepare("av2", outputs["root"], out, TargetOptions())
         assert files(out) == before
         # the next --overwrite run first puts back the earlier output, whole, with the user's file
-        said = prepare_module.recover_overwrite(out)
+        said = output_folder.recover_overwrite(out)
         assert said == f"{out}: put back the earlier output that an interrupted `cli prepare --overwrite` " \
                        "was replacing", at  # fmt: skip
         assert files(out) == old, at
@@ -273,14 +273,14 @@ def test_moving_in_interrupted_at_any_file_leaves_the_old_or_the_new_output_whol
     out = tmp_path / "cleanup"
     staged(outputs, out)
     with monkeypatch.context() as patch:
-        patch.setattr(prepare_module, "remove_output", mock.Mock(side_effect=KeyboardInterrupt))
+        patch.setattr(output_folder, "remove_output", mock.Mock(side_effect=KeyboardInterrupt))
         with pytest.raises(KeyboardInterrupt):
-            prepare_module.move_in(out / prepare_module.STAGE, out)
+            output_folder.move_in(out / output_folder.STAGE, out)
     assert written(out) == new
-    assert prepare_module.recover_overwrite(out).endswith(
+    assert output_folder.recover_overwrite(out).endswith(
         "finished the clean-up of an interrupted `cli prepare --overwrite` (its output is whole)"
     )
-    assert written(out) == new and (out / "notes.txt").is_file() and not (out / prepare_module.STAGE).exists()
+    assert written(out) == new and (out / "notes.txt").is_file() and not (out / output_folder.STAGE).exists()
 
 
 @pytest.mark.parametrize("at", [3, 20])  # setting the earlier files aside; moving the new ones in
@@ -292,18 +292,18 @@ def test_an_overwrite_interrupted_while_moving_in_puts_the_earlier_output_back(o
     args = dict(overwrite=True, split_files={"train": outputs["split_file"]})
     calls: list[int] = []
     with monkeypatch.context() as patch:
-        patch.setattr(prepare_module, "os", failing_replace(at, KeyboardInterrupt(), calls))
+        patch.setattr(output_folder, "os", failing_replace(at, KeyboardInterrupt(), calls))
         with pytest.raises(KeyboardInterrupt):
             prepare("av2", outputs["root"], out, TargetOptions(path_points=20), **args)
     assert files(out) == before  # at once, by the run itself
     # a rename that fails for good: the folder is left to the next run, which says what it did
     with monkeypatch.context() as patch:
-        patch.setattr(prepare_module, "os", failing_replace(at, OSError("disk gone"), [], for_good=True))
+        patch.setattr(output_folder, "os", failing_replace(at, OSError("disk gone"), [], for_good=True))
         with pytest.raises(OSError, match="disk gone"):
             prepare("av2", outputs["root"], out, TargetOptions(path_points=20), **args)
     assert "manifest.json" not in files(out)  # the first rename failed, and so did putting it back
     said = one_error_line(cli("prepare", "--dataset", "av2", "--root", outputs["root"], "--out", out),
-                          str(out / prepare_module.STAGE), "--overwrite")  # fmt: skip
+                          str(out / output_folder.STAGE), "--overwrite")  # fmt: skip
     assert "was replacing" in said
     result = cli("prepare", "--dataset", "av2", "--root", outputs["root"], "--out", out, "--overwrite",
                  "--path-points", 20, "--split-file", f"train={outputs['split_file']}")  # fmt: skip
@@ -312,20 +312,20 @@ def test_an_overwrite_interrupted_while_moving_in_puts_the_earlier_output_back(o
         result.output  # fmt: skip
     assert written(out).keys() == written(outputs["new"]).keys()
     assert frames_by_log(out) == frames_by_log(outputs["new"]) and (out / "notes.txt").is_file()
-    assert not (out / prepare_module.STAGE).exists()
+    assert not (out / output_folder.STAGE).exists()
 
 
 def test_an_overwrite_killed_while_preparing_is_named_by_the_next_run(outputs, tmp_path):
     out = tmp_path / "out"
     shutil.copytree(outputs["old"], out)
-    shutil.copytree(outputs["new"] / "frames", out / prepare_module.STAGE / "frames")  # killed part way
+    shutil.copytree(outputs["new"] / "frames", out / output_folder.STAGE / "frames")  # killed part way
     before = files(out)
     result = cli("prepare", "--dataset", "av2", "--root", outputs["root"], "--out", out)
-    said = one_error_line(result, str(out / prepare_module.STAGE), "--overwrite", "earlier output is whole")
+    said = one_error_line(result, str(out / output_folder.STAGE), "--overwrite", "earlier output is whole")
     assert (
-        f"delete {out / prepare_module.STAGE} to add to the earlier output" in said and files(out) == before
+        f"delete {out / output_folder.STAGE} to add to the earlier output" in said and files(out) == before
     )
     result = cli("prepare", "--dataset", "av2", "--root", outputs["root"], "--out", out, "--overwrite")
     assert result.exit_code == 0, result.output
     assert "removed the unfinished output of an interrupted `cli prepare --overwrite`" in result.output
-    assert frames_by_log(out) == frames_by_log(outputs["old"]) and not (out / prepare_module.STAGE).exists()
+    assert frames_by_log(out) == frames_by_log(outputs["old"]) and not (out / output_folder.STAGE).exists()

@@ -281,6 +281,7 @@ def prepare(
 
 @app.command(short_help="Train a baseline: LaneGAP, MapTR, STSU or HDMapNet")
 def train(
+    ctx: typer.Context,
     data: Path = typer.Option(
         None, show_default="the run's, on --resume", help="Prepared dataset (cli prepare --out)"
     ),
@@ -376,8 +377,7 @@ def train(
       cli train --model lanegap --data prepared/av2 --out runs/lanegap --preset tiny --checkpoint-every 100
       torchrun --nproc_per_node 8 -m cli train --model maptr --data prep --out runs/maptr --pretrained r50.pth
     """
-    from baselines.config import apply_overrides
-    from baselines.models import load_config, resolve_config
+    from baselines.models import resolve_config, resume_config
     from baselines.run_folder import TRAINING_FILES, RunFolder
     from baselines.train import train as run_train
 
@@ -387,14 +387,10 @@ def train(
     told: set[str] = set()  # on resume, the fields changed on this command line (logged in run.json)
     with reported_errors():
         RunFolder.check_free(out, resume, overwrite)
-        if resume:  # the run's own config; --epochs, the options of long runs and --set may change it
-            if not (out / "config.json").is_file() or not (out / "run.json").is_file():
-                raise ValueError(f"--out {out}: no run to resume (config.json and run.json of cli train)")
-            config = load_config(out / "config.json")
-            given = [f"train.epochs={epochs}"] if epochs else []
-            apply_overrides(config, given, "--epochs")
-            apply_overrides(config, long_run + set_)
-            told = {item.partition("=")[0].strip() for item in given + long_run + set_}
+        if resume:  # the run's own config, which the options given change as told or refuse by name
+            given = {name: value for name, value in ctx.params.items()  # typer's own click: by the name
+                     if ctx.get_parameter_source(name).name == "COMMANDLINE"}  # fmt: skip
+            config, told = resume_config(out, given, long_run + set_)
             data = data or Path(json.loads((out / "run.json").read_text())["data"])
         else:
             weights = str(pretrained) if pretrained else None
@@ -477,15 +473,15 @@ def score(
     pred: Path = typer.Option(
         ...,
         help="Predictions: a graph-table Parquet file or a folder of shards (e.g. RUN/predictions.parquet), "
-        "or the results JSON of MapTRv2 / LaneGAP or CGNet (with --format)",
+        "or the results JSON of MapTRv2 / LaneGAP or CGNet",
     ),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset or a graph-table file"),
-    format_: Literal["graph", "maptrv2", "cgnet", "auto"] = typer.Option(
-        "graph",
+    format_: Literal["auto", "graph", "maptrv2", "cgnet"] = typer.Option(
+        "auto",
         "--format",
-        help="graph: our graph table; maptrv2: MapTRv2 / LaneGAP's nuscmap_results.json or "
-        "av2map_results.json (paths, Path2Graph); cgnet: CGNet's nuscmap_results.json (snapped pieces, "
-        "equal points merged); auto: told apart by their content (docs/EXTERNAL.md)",
+        help="auto: told by the file's content; graph: our graph table; maptrv2: MapTRv2 / LaneGAP's "
+        "nuscmap_results.json or av2map_results.json (paths, Path2Graph); cgnet: CGNet's "
+        "nuscmap_results.json (snapped pieces, equal points merged) (docs/EXTERNAL.md)",
     ),
     class_name: str = typer.Option(
         None, show_default="centerline", help="maptrv2 / cgnet: the class of vectors scored, others ignored"
@@ -542,7 +538,7 @@ def score(
     \b
     Examples:
       cli score --pred runs/lanegap/predictions.parquet --gt prepared/av2
-      cli score --pred pts_bbox/nuscmap_results.json --format maptrv2 --gt prepared/nusc --out runs/maptrv2
+      cli score --pred pts_bbox/nuscmap_results.json --gt prepared/nusc --out runs/maptrv2
     """
     from benchmark.metric.table import ALWAYS, console_tables, parse_metrics
     from benchmark.score import score as run_score

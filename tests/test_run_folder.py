@@ -248,3 +248,70 @@ def test_a_resume_on_fewer_or_more_processes_than_saved_the_checkpoint_is_refuse
         trainer.load(one, world_size=2)
     trainer.load(one, world_size=1)
     assert all(torch.equal(v, one["model"][k]) for k, v in trainer.model.state_dict().items())
+
+
+def test_each_option_given_on_resume_is_applied_as_a_told_change_or_refused_by_name(toy_data, tmp_path):
+    """Before, `cli train --resume` silently dropped --batch-size, --accumulate, --model, --preset,
+    --modality, --path-points, --bezier-points, --aux-seg, --pretrained and --from-scratch."""
+    run = tmp_path / "run"
+    result = cli("train", "--data", toy_data, "--out", run, *TRAIN, "--epochs", 2, "--stop-after", 1)
+    assert result.exit_code == 0, result.output
+    weights = tmp_path / "r18.pth"
+    weights.write_bytes(b"")
+    before = files(run)
+    refused = {
+        ("--batch-size", "4"): "train.batch_size=2, and another batch changes the steps per epoch",
+        ("--set", "train.batch_size=4"): "train.batch_size=2, and another batch",
+        ("--model", "maptr"): "model='lanegap', and the checkpoint holds that model's weights",
+        ("--preset", "gpu"): "preset='tiny', and the preset sized every section",
+        ("--modality", "camera"): "encoder.modality='lidar', and it shapes the model",
+        ("--path-points", "20"): "decoder.path_points=10, and it shapes the model",
+        ("--bezier-points", "5"): "decoder.bezier_points=0, and it shapes the model",
+        ("--aux-seg",): "decoder.aux_seg=False, and it shapes the model",
+        ("--pretrained", weights): "encoder.backbone_weights='', and the checkpoint holds the backbone's",
+    }
+    for args, why in refused.items():
+        shown = " ".join(map(str, args))
+        error = one_error_line(cli("train", "--out", run, "--resume", *args), why)
+        assert error.startswith(f"error: {shown} on --resume: the run in {run} was trained with "), error
+        assert error.endswith("(leave the option out, or start another run in another --out)")
+    assert files(run) == before  # refused before any work
+
+    # the run's own command line again, with --resume: its options change nothing; --accumulate 2 splits
+    # each batch of 2 in two micro-batches, 2 steps per epoch as before: a told change, logged
+    again = ("train", "--data", toy_data, "--out", run, *TRAIN, "--epochs", 2, "--from-scratch")
+    result = cli(*again, "--model", "lanegap", "--resume", "--accumulate", 2)
+    assert result.exit_code == 0, result.output
+    assert "resumed at step 2 with train.accumulate 0 -> 2" in result.output
+    assert run_json(run)["config_changes"] == [
+        {"field": "train.accumulate", "before": 0, "after": 2, "step": 2}
+    ]
+    assert load_config(run / "config.json").train.accumulate == 2
+    checkpoint = load_checkpoint(run / "checkpoint.pt")
+    assert checkpoint["step"] == 4 and checkpoint["config"]["train"]["accumulate"] == 2
+    assert "micro-batch" in result.output and "2 micro-batch(es) x 1 frames" in result.output
+
+
+def test_micro_batches_changed_on_resume_that_change_the_steps_per_epoch_are_refused(tmp_path):
+    # 6 frames in batches of 4: one step an epoch (the last 2 frames dropped) in one micro-batch of 4, but
+    # two in micro-batches of 2 (3 of them: a step of 2, then one of 1)
+    data = write_toy_dataset(tmp_path, frames=6)
+    run = tmp_path / "run"
+    args = [*TRAIN, "--batch-size", 4]
+    result = cli("train", "--data", data, "--out", run, *args, "--epochs", 2, "--stop-after", 1)
+    assert result.exit_code == 0, result.output
+    config = load_config(run / "config.json")
+    s = setup(config, PreparedData.open(data))
+    assert s.steps_per_epoch == train_module.steps_per_epoch(6, 1, config.train) == 1
+    config.train.accumulate = 2
+    assert train_module.steps_per_epoch(6, 1, config.train) == 2
+    before = files(run)
+    error = one_error_line(
+        cli("train", "--out", run, "--resume", "--accumulate", 2), "train.accumulate 0 -> 2"
+    )
+    assert error == (
+        "error: train.accumulate 0 -> 2 on --resume: 2 optimiser steps per epoch, the checkpoint's run had 1 "
+        "(the epoch's last frames split otherwise): its step count, schedule and place in the epoch stand on "
+        "them; resume with the micro-batches it had or with ones that keep 1"
+    )
+    assert files(run) == before

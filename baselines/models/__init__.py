@@ -11,6 +11,7 @@ the prepared tables its targets come from (`needs`).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 from pathlib import Path
@@ -70,6 +71,19 @@ def load_config(path: Path) -> Config:
     return Config.from_dict({**values, "model": model}, head(model, "paper"), str(path))
 
 
+# The `cli train` options that set one config field each, by their parameter's name: (option, field).
+OPTION_FIELDS = {
+    "modality": ("--modality", "encoder.modality"),
+    "epochs": ("--epochs", "train.epochs"),
+    "batch_size": ("--batch-size", "train.batch_size"),
+    "path_points": ("--path-points", "decoder.path_points"),
+    "bezier_points": ("--bezier-points", "decoder.bezier_points"),
+    "aux_seg": ("--aux-seg", "decoder.aux_seg"),
+    "pretrained": ("--pretrained", "encoder.backbone_weights"),
+    "accumulate": ("--accumulate", "train.accumulate"),
+}
+
+
 def resolve_config(
     preset: str,
     modality: str | None = None,
@@ -90,22 +104,96 @@ def resolve_config(
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}: expected one of {', '.join(PRESETS)}")
     config = dataclasses.replace(PRESETS[preset](), model=model, decoder=head(model, preset))
-    flags = {
-        "--modality": ("encoder.modality", modality),
-        "--epochs": ("train.epochs", epochs),
-        "--batch-size": ("train.batch_size", batch_size),
-        "--path-points": ("decoder.path_points", path_points),
-        "--bezier-points": ("decoder.bezier_points", bezier_points),
-        "--aux-seg": ("decoder.aux_seg", aux_seg),
-        "--pretrained": ("encoder.backbone_weights", backbone_weights),
-        "--accumulate": ("train.accumulate", accumulate),
-    }
-    for flag, (name, value) in flags.items():
+    values = {"modality": modality, "epochs": epochs, "batch_size": batch_size, "path_points": path_points,
+              "bezier_points": bezier_points, "aux_seg": aux_seg, "pretrained": backbone_weights,
+              "accumulate": accumulate}  # fmt: skip
+    for name, value in values.items():
         if value is not None:
-            set_field(config, f"{name}={value}", flag)
+            flag, field_name = OPTION_FIELDS[name]
+            set_field(config, f"{field_name}={value}", flag)
     apply_overrides(config, overrides or [])
     if config.encoder.modality not in ("camera", "lidar", "fusion"):
         raise ValueError(f"modality must be camera, lidar or fusion, not {config.encoder.modality!r}")
     if from_scratch:
         config.encoder.backbone_frozen_stages, config.encoder.backbone_norm_eval = -1, False
     return config
+
+
+SHAPES = "it shapes the model, whose weights the checkpoint holds"
+# The fields that a resume keeps, and why: the checkpoint's weights, optimiser and place in its epoch were
+# made with them. A resume's option or --set that would change one is refused by name (resume_config).
+KEPT_ON_RESUME = {
+    "model": "the checkpoint holds that model's weights",
+    "preset": "the preset sized every section of the model and the run that the checkpoint holds",
+    "encoder.modality": SHAPES,
+    "decoder.path_points": SHAPES,
+    "decoder.bezier_points": SHAPES,
+    "decoder.aux_seg": SHAPES,
+    "encoder.backbone_weights": "the checkpoint holds the backbone's weights: a resume reads no such file",
+    "encoder.backbone_frozen_stages": "it sets which backbone weights the optimiser of the checkpoint trains",
+    "encoder.backbone_norm_eval": "it sets how the backbone's BatchNorm of the checkpoint normalises",
+    "train.batch_size": "another batch changes the steps per epoch, the learning-rate schedule and where an "
+    "interrupted epoch goes on",
+}
+# The `cli train` options that a resume takes as they are: the run folder, the data, this invocation's own
+# (--stop-after, --json) and those that cli.py passes as --set items (--set and the long runs' options).
+RESUME_OWN = {"out", "resume", "overwrite", "data", "stop_after", "as_json", "set_", "eval_every",
+              "eval_frames", "best_metric", "checkpoint_every", "max_bad_steps"}  # fmt: skip
+
+
+def option_shown(name: str, value: Any) -> str:
+    """A `cli train` option as given, by its parameter's name: `--batch-size 4`, `--no-aux-seg`."""
+    flag = OPTION_FIELDS[name][0] if name in OPTION_FIELDS else f"--{name.replace('_', '-')}"
+    if isinstance(value, bool):
+        return flag if value else f"--no-{flag[2:]}"
+    return f"{flag} {value}"
+
+
+def field_value(config: Config, name: str) -> Any:
+    """The value of `section.field` (or of a top-level field: model, preset) in `config`."""
+    section, dot, field_name = name.partition(".")
+    return getattr(getattr(config, section), field_name) if dot else getattr(config, name)
+
+
+def resume_config(out: Path, options: dict[str, Any], overrides: list[str]) -> tuple[Config, set[str]]:
+    """The config that a resume of the run in `out` goes on with, and the fields told on its command line:
+    its config.json with `options` (the `cli train` options given, by their parameter's name) and then
+    `overrides` (`--set` items) applied as told changes, which run.json logs (RunFolder.resume). A change
+    of a field that the resume keeps (KEPT_ON_RESUME) is refused in one line naming the option and why,
+    before any work; an option given equal to the run's changes nothing."""
+    if not (out / "config.json").is_file() or not (out / "run.json").is_file():
+        raise ValueError(f"--out {out}: no run to resume (config.json and run.json of cli train)")
+    config = load_config(out / "config.json")
+    trained = copy.deepcopy(config)
+
+    def keep(name: str, option: str) -> None:
+        before, after = field_value(trained, name), field_value(config, name)
+        if name in KEPT_ON_RESUME and before != after:
+            raise ValueError(f"{option} on --resume: the run in {out} was trained with {name}={before!r}, "
+                             f"and {KEPT_ON_RESUME[name]}: a resume goes on with it (leave the option out, "
+                             "or start another run in another --out)")  # fmt: skip
+
+    told: set[str] = set()
+    for name, value in options.items():
+        option = option_shown(name, value)
+        if name in ("model", "preset"):
+            setattr(config, name, value)
+            keep(name, option)
+        elif name == "from_scratch" and value:  # resolve_config's two fields
+            config.encoder.backbone_frozen_stages, config.encoder.backbone_norm_eval = -1, False
+            keep("encoder.backbone_frozen_stages", option)
+            keep("encoder.backbone_norm_eval", option)
+        elif name in OPTION_FIELDS:
+            field_name = OPTION_FIELDS[name][1]
+            set_field(config, f"{field_name}={value}", OPTION_FIELDS[name][0])
+            keep(field_name, option)
+            told.add(field_name)
+        elif name not in RESUME_OWN and name != "from_scratch":
+            raise ValueError(f"{option} on --resume: a resume does not apply it (leave it out)")
+    for item in overrides:
+        set_field(config, item, f"--set {item}")
+        field_name = item.partition("=")[0].strip()
+        keep(field_name, f"--set {item}")
+        told.add(field_name)
+    config.check_across("--set")
+    return config, told

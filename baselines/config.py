@@ -268,6 +268,16 @@ class TrainConfig:
                              f"into {accumulate} equal micro-batches")  # fmt: skip
         return per_process // accumulate, accumulate
 
+    def steps_per_epoch(self, frames: int, world_size: int) -> int:
+        """The optimiser steps of an epoch over `frames` training frames, as baselines/train.py's loader
+        makes them: each process's share (the sampler pads it to ceil(frames / world_size)) in
+        micro-batches, the last smaller one dropped when the split holds a whole batch, `accumulate` of
+        them a step (the last may hold fewer)."""
+        micro_batch, accumulate = self.micro_batches(world_size)
+        share = math.ceil(frames / world_size)
+        batches = share // micro_batch if frames >= self.batch_size else math.ceil(share / micro_batch)
+        return math.ceil(batches / accumulate)
+
 
 @dataclass
 class Config:

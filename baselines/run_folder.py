@@ -180,6 +180,27 @@ def config_changes(trained: dict, going_on: dict, told: Collection[str], logged:
     return changes
 
 
+def check_steps_per_epoch(trained: dict | None, now: TrainConfig, frames: int, world_size: int) -> None:
+    """A resume may change how a batch splits into micro-batches (train.accumulate,
+    max_batch_per_device) where that keeps the optimiser steps per epoch of the checkpoint's run (its
+    config `trained`), on which the step count, the schedule and the place inside an interrupted epoch
+    stand; otherwise refused in one line. `frames`: the training split's, over `world_size` processes."""
+    if trained is None:  # a checkpoint of an earlier version: nothing to compare
+        return
+    names = ("batch_size", "accumulate", "max_batch_per_device")
+    before = dataclasses.replace(now, **{name: trained["train"][name] for name in names
+                                         if name in trained.get("train", {})})  # fmt: skip
+    old, new = before.steps_per_epoch(frames, world_size), now.steps_per_epoch(frames, world_size)
+    if old != new:
+        changed = ", ".join(f"train.{name} {getattr(before, name)} -> {getattr(now, name)}"
+                            for name in names if getattr(before, name) != getattr(now, name))  # fmt: skip
+        raise CheckpointError(
+            f"{changed} on --resume: {new} optimiser steps per epoch, the checkpoint's run had {old} (the "
+            "epoch's last frames split otherwise): its step count, schedule and place in the epoch stand on "
+            f"them; resume with the micro-batches it had or with ones that keep {old}"
+        )
+
+
 class RunFolder:
     """RUN_DIR (the module's docstring): a new run or one resumed, its logs, its TensorBoard events and
     its checkpoints. Only rank 0 (`master`) writes."""

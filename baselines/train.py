@@ -19,7 +19,6 @@ at a loss scale of 1 or less it counts as such a step.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import random
@@ -49,12 +48,12 @@ from baselines.checkpoint import (
     rng_state,
     set_rng_state,
 )
-from baselines.config import PAPER_EPOCHS, Config, TrainConfig
+from baselines.config import PAPER_EPOCHS, Config
 from baselines.data import Batch, PreparedDataset, collate
 from baselines.device import amp_settings, cuda_settings
 from baselines.models import build, check_backbone_weights, without_pretrained_weights
 from baselines.models.base import Built
-from baselines.run_folder import Best, RunFolder
+from baselines.run_folder import Best, RunFolder, check_steps_per_epoch
 from baselines.validate import Validation
 from pipeline import progress
 from pipeline.manifest import PreparedData
@@ -409,37 +408,6 @@ def setup(config: Config, data: PreparedData, resume: bool = False) -> Setup:
                  rank, world_size)  # fmt: skip
 
 
-def steps_per_epoch(frames: int, world_size: int, train_config: TrainConfig) -> int:
-    """The optimiser steps of an epoch over `frames` training frames, as Setup's loader makes them: each
-    process's share (the sampler pads it to ceil(frames / world_size)) in micro-batches, the last smaller
-    one dropped when the split holds a whole batch, `accumulate` of them a step (the last may hold fewer)."""
-    micro_batch, accumulate = train_config.micro_batches(world_size)
-    share = math.ceil(frames / world_size)
-    batches = share // micro_batch if frames >= train_config.batch_size else math.ceil(share / micro_batch)
-    return math.ceil(batches / accumulate)
-
-
-def check_steps_per_epoch(s: Setup, checkpoint: dict) -> None:
-    """A resume may change how a batch is split into micro-batches (train.accumulate,
-    max_batch_per_device) where that keeps the optimiser steps per epoch: the step count, the schedule and
-    the place inside an interrupted epoch stand on them. Otherwise refused in one line."""
-    trained = checkpoint.get("config", {}).get("train")
-    if trained is None:  # a checkpoint of an earlier version: nothing to compare
-        return
-    names = ("batch_size", "accumulate", "max_batch_per_device")
-    before = dataclasses.replace(s.config.train, **{name: trained[name] for name in names if name in trained})
-    old = steps_per_epoch(len(s.dataset), s.world_size, before)
-    if old != s.steps_per_epoch:
-        now = s.config.train
-        changed = ", ".join(f"train.{name} {getattr(before, name)} -> {getattr(now, name)}"
-                            for name in names if getattr(before, name) != getattr(now, name))  # fmt: skip
-        raise CheckpointError(
-            f"{changed} on --resume: {s.steps_per_epoch} optimiser steps per epoch, the checkpoint's run had "
-            f"{old} (the epoch's last frames split otherwise): its step count, schedule and place in the "
-            f"epoch stand on them; resume with the micro-batches it had or with ones that keep {old}"
-        )
-
-
 def validation_epochs(config: Config) -> set[int]:
     """The epochs (1-based) after which the run validates: every train.eval_every and the last one."""
     epochs, every = config.train.epochs, config.train.eval_every
@@ -655,7 +623,7 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
     start_epoch, skip_steps, restore = 0, 0, None
     if resume:
         checkpoint = run.resume(data, config, told)
-        check_steps_per_epoch(s, checkpoint)
+        check_steps_per_epoch(checkpoint.get("config"), config.train, len(s.dataset), s.world_size)
         s.trainer.load(checkpoint, s.world_size)
         run.resumed(checkpoint, config)
         start_epoch, skip_steps = checkpoint["epoch"], checkpoint.get("epoch_steps", 0)

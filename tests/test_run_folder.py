@@ -302,9 +302,9 @@ def test_micro_batches_changed_on_resume_that_change_the_steps_per_epoch_are_ref
     assert result.exit_code == 0, result.output
     config = load_config(run / "config.json")
     s = setup(config, PreparedData.open(data))
-    assert s.steps_per_epoch == train_module.steps_per_epoch(6, 1, config.train) == 1
+    assert s.steps_per_epoch == config.train.steps_per_epoch(6, 1) == 1  # as the loader makes them
     config.train.accumulate = 2
-    assert train_module.steps_per_epoch(6, 1, config.train) == 2
+    assert config.train.steps_per_epoch(6, 1) == 2
     before = files(run)
     error = one_error_line(
         cli("train", "--out", run, "--resume", "--accumulate", 2), "train.accumulate 0 -> 2"

@@ -369,8 +369,10 @@ def train(
     """Train a baseline on a prepared dataset; DDP when started by torchrun (--batch-size is over all
     processes, and with --json every process prints its line). Validates during training (RUN/val.jsonl,
     RUN/best.pt) and writes TensorBoard events to RUN/tb (tensorboard --logdir RUN). A step whose loss or
-    gradient norm is not finite is skipped. --resume refuses a dataset prepared with other target
-    parameters, and falls back to checkpoint.prev.pt when checkpoint.pt is damaged.
+    gradient norm is not finite is skipped. --resume goes on with the run's config: an option or --set given
+    is logged in run.json (config_changes), or refused by name where the checkpoint was made otherwise
+    (model, preset, shape, batch size) or config.json was edited; it refuses a dataset prepared with other
+    target parameters, and falls back to checkpoint.prev.pt when checkpoint.pt is damaged.
 
     \b
     Examples:

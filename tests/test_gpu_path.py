@@ -296,7 +296,7 @@ def test_the_gpu_check_names_only_the_files_it_wrote_when_every_model_fails(tmp_
         if args[0] == "train":
             raise gpu_check.CommandFailed(" ".join(args), 1, ["error: out of memory"])
         assert args[0] in ("synth", "prepare"), args  # no eval and no report without a finished run
-        Path(args[2]).mkdir(parents=True)  # their --out, as they make it
+        Path(args[args.index("--out") + 1]).mkdir(parents=True)  # their --out, as they make it
 
     shown = io.StringIO()
     monkeypatch.setattr(gpu_check, "cli", cli)

@@ -1,2 +1,2 @@
 """Lane graphs scored: reconstruction from each representation (graphs/), the metric (metric/), `cli score`
-(predictions.py reads, score.py scores) and `cli report` (report/)."""
+(formats/ reads, score.py scores) and `cli report` (report/)."""

@@ -1,10 +1,10 @@
 """`cli score`: check the options, open the ground truth, read the predictions in one step, score them, write
 the result (a JSON file or a run folder); also the scoring of (pred, gt) pairs that others call.
 
-The predictions are read by benchmark/predictions.py (a graph table, or a result file of another codebase)
-into one `Predictions`: the graphs of the frames to score and what the result says of the file. The
-ground truth is the `graphs` table of a prepared dataset (a folder) or one graph-table file
-(benchmark/graph_table.py).
+The predictions are read by the reader of their format (benchmark/formats/: a graph table, or a result
+file of another codebase) into one `Predictions`: each frame to score, as the metrics take it (`Frame`), and
+what the result says of the file. The ground truth is the `graphs` table of a prepared dataset (a folder)
+or one graph-table file (benchmark/graph_table.py).
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from benchmark import predictions
+from benchmark import formats
+from benchmark.formats.base import GroundTruth, Options, Predictions
 from benchmark.graph_table import (
     TARGETS_KEY,
     GraphTableError,
@@ -36,13 +37,10 @@ from pipeline.lane_graph import LaneGraph
 from pipeline.progress import track
 
 
-def _score_chunk(
-    chunk: list[tuple[LaneGraph, LaneGraph]], params: MetricParams, metrics: tuple[Metric, ...],
-    scores: list[np.ndarray | None] | None = None,
-) -> Contributions:  # fmt: skip
+def _score_chunk(chunk: list[Frame], params: MetricParams, metrics: tuple[Metric, ...]) -> Contributions:
     part = Contributions(metrics, params)
-    for (pred, gt), frame_scores in zip(chunk, scores or [None] * len(chunk)):
-        part.add_frame(Frame(pred, gt, frame_scores))
+    for frame in chunk:
+        part.add_frame(frame)
     return part
 
 
@@ -65,37 +63,42 @@ def score_frames(
     each other one under its name, all scored per frame in the same workers. `pred_scores`, parallel to
     `pairs`: each prediction's edge scores (one per edge of its graph, or None: no score), OpenLane-V2's
     lane confidences."""
-    workers = workers if workers > 0 else os.cpu_count() or 1
     if pred_scores is not None and len(pred_scores) != len(pairs):
         raise ValueError(f"pred_scores: one per pair ({len(pairs)}) is needed, not {len(pred_scores)}")
     scores = list(pred_scores) if pred_scores is not None else [None] * len(pairs)
+    frames = [Frame(pred, gt, frame_scores) for (pred, gt), frame_scores in zip(pairs, scores)]
+    return score_frame_records(frames, params, workers, metrics)
+
+
+def score_frame_records(frames: list[Frame], params: MetricParams, workers: int = 1,
+                        metrics: tuple[Metric, ...] = ALWAYS) -> tuple[dict, np.ndarray | None]:  # fmt: skip
+    """score_frames of the frames as the metrics take them (a format's reader gives them so)."""
+    workers = workers if workers > 0 else os.cpu_count() or 1
     scored = Contributions(metrics, params)
-    with track("score frames", len(pairs)) as advance:
-        if workers <= 1 or len(pairs) < 2 * workers:
-            for (pred, gt), frame_scores in zip(pairs, scores):
-                scored.add_frame(Frame(pred, gt, frame_scores))
+    with track("score frames", len(frames)) as advance:
+        if workers <= 1 or len(frames) < 2 * workers:
+            for frame in frames:
+                scored.add_frame(frame)
                 advance()
         else:
-            size = max(1, min(64, len(pairs) // (4 * workers)))
-            chunks = [pairs[i : i + size] for i in range(0, len(pairs), size)]
-            score_chunks = [scores[i : i + size] for i in range(0, len(scores), size)]
+            size = max(1, min(64, len(frames) // (4 * workers)))
+            chunks = [frames[i : i + size] for i in range(0, len(frames), size)]
             with ProcessPoolExecutor(workers) as pool:
-                parts = pool.map(_score_chunk, chunks, [params] * len(chunks), [metrics] * len(chunks),
-                                 score_chunks)  # fmt: skip
+                parts = pool.map(_score_chunk, chunks, [params] * len(chunks), [metrics] * len(chunks))
                 for chunk, part in zip(chunks, parts):
                     scored.add(part)  # in chunk order, so in pair order; LaneGAP's exact sums: no digit moves
                     advance(len(chunk))
     return scored.result(), scored.frame_counts()
 
 
-def sweep_scores(pred: predictions.Predictions, gt: dict[str, LaneGraph], params: MetricParams,
+def sweep_scores(pred: Predictions, gt: dict[str, LaneGraph], params: MetricParams,
                  workers: int) -> list[dict]:  # fmt: skip
     """F1 of each kept score (no intervals): how much the choice of --min-score matters."""
     rows = []
-    for min_score, converted in pred.sweep():
-        pairs = [(converted.graphs[f], gt[f]) for f in sorted(converted.graphs)]
+    for swept in pred.sweep():
+        pairs = [(swept.graphs[f], gt[f]) for f in sorted(swept.graphs)]
         result, _ = score_frames(pairs, params, workers)
-        rows.append({"min_score": min_score, "vectors_kept": converted.kept,
+        rows.append({"min_score": swept.min_score, "vectors_kept": swept.vectors_kept,
                      **{mode: {m: result[mode][m]["f1"] for m in ("topo", "junction_topo")}
                         for mode in ("directed", "undirected")}})  # fmt: skip
     return rows
@@ -150,43 +153,43 @@ def write_run(run_dir: Path, graphs: dict[str, LaneGraph], frame_counts: np.ndar
 
 def score(
     pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, bootstrap: int = 0,
-    split: str | None = None, fmt: str = "graph", class_name: str | None = None,
+    split: str | None = None, fmt: str = formats.AUTO, class_name: str | None = None,
     min_score: float | None = None, sweep: bool = False, metrics: tuple[Metric, ...] = ALWAYS, **params,
 ) -> dict:  # fmt: skip
     """Score predictions against the ground truth; params are MetricParams fields; `bootstrap` draws over
     the frames give each F1 its 95 % interval (0: none; `cli score`: DRAWS). `metrics`: LaneGAP's (the
     result's top level) and the other published ones (benchmark/metric/table.py, each under its name).
 
-    fmt "graph" (a graph table), "maptrv2" / "cgnet" (another codebase's JSON) or "auto", and which frames
-    are scored for `split`: benchmark/predictions.py. `sweep` (not for graph) adds the F1 at each of
-    external.SWEEP's kept scores. `out`: a .json file of the result, or a run folder (`write_run`) that
-    `cli report` reads.
+    fmt: a format's name (benchmark/formats/: "graph", "maptrv2", "cgnet") or "auto", told by the file's
+    content; which frames are scored for `split`: its reader's docstring. `sweep` (a format with scores)
+    adds the F1 at each of formats.base.SWEEP's kept scores. `out`: a .json file of the result, or a run
+    folder (`write_run`) that `cli report` reads.
     """
     check_draws(bootstrap)
-    request = predictions.request(pred_path, fmt, class_name, min_score, sweep)
+    options = Options(class_name, min_score, sweep)
+    reader, source = formats.checked(pred_path, fmt, options)
     check_out(out)
     check_metrics(metrics, out, sweep)
     params.setdefault("bev_range", default_range(gt_path))
     metric_params = MetricParams(**params)
     gt = graphs_from_table(read_graph_table(gt_path), Path(gt_path))
-    pred = predictions.read(request, Path(gt_path), gt, split, workers)
-    pairs = [(pred.graphs[f], gt[f]) for f in pred.frame_ids]
-    # each prediction's edge scores (a result file's vectors' scores; None: a graph table, no score)
-    pred_scores = None if pred.edge_scores is None else [pred.edge_scores[f] for f in pred.frame_ids]
-    result, frame_counts = score_frames(pairs, metric_params, workers, metrics, pred_scores)
+    truth = GroundTruth(Path(gt_path), gt, split, workers if workers > 0 else os.cpu_count() or 1)
+    pred = reader.read(source, options, truth)
+    frames = [prediction.frame(gt[prediction.frame_id]) for prediction in pred]
+    result, frame_counts = score_frame_records(frames, metric_params, workers, metrics)
     if frame_counts is not None:
         add_intervals(result, frame_counts, bootstrap)
-    result.setdefault("frames", len(pairs))
+    result.setdefault("frames", len(frames))
     result.update(pred=str(pred_path), gt=str(gt_path), **pred.info())
     run_folder = out is not None and Path(out).suffix.lower() != ".json"
-    if pred.fmt != "graph" or run_folder:  # what `cli report` says of a model that is not ours
+    if pred.format.external or run_folder:  # what `cli report` says of a model that is not ours
         result["external"] = pred.provenance()
     if sweep:
         result["sweep"] = sweep_scores(pred, gt, metric_params, workers)
     if run_folder:
         split_text = "+".join(result["splits"] or []) or None
         metrics = {**result, "data": str(Path(gt_path).resolve()), "split": split_text,
-                   "model": "external", "modeling": pred.modeling, "params": None, "gflops": None,
+                   "model": "external", "modeling": pred.format.modeling, "params": None, "gflops": None,
                    "fps_net": None, "fps": None, "device": None, "precision": None}  # fmt: skip
         write_run(Path(out), pred.graphs, frame_counts, metrics)
     else:

@@ -20,7 +20,7 @@ from test_score_external import (
 )
 from typer.testing import CliRunner
 
-from benchmark.external import merge_equal_points, merge_equal_points_scored
+from benchmark.formats.cgnet_json import merge_equal_points, merge_equal_points_scored
 from benchmark.graphs.path2graph import path2graph, path2graph_scored
 from benchmark.metric.openlanev2 import SCORED
 from benchmark.metric.params import EPS, MetricParams

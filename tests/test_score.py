@@ -133,11 +133,11 @@ def test_tables_that_cannot_be_scored(tmp_path, gt_file):
     )
     with pytest.raises(GraphTableError, match="column src is list<.*float>, not a list of integers"):
         score(write(tmp_path / "p4.parquet", [row("f/a", LANE)], floats), gt_file)
-    with pytest.raises(GraphTableError, match="no such file"):
-        score(tmp_path / "missing.parquet", gt_file)
+    with pytest.raises(GraphTableError, match="missing.parquet: no such file"):
+        score(tmp_path / "missing.parquet", gt_file, fmt="graph")
     (tmp_path / "junk.parquet").write_text("not parquet")
-    with pytest.raises(GraphTableError, match="junk.parquet"):
-        score(tmp_path / "junk.parquet", gt_file)
+    with pytest.raises(GraphTableError, match="junk.parquet: not a readable Parquet graph table"):
+        score(tmp_path / "junk.parquet", gt_file, fmt="graph")
 
 
 def test_cli_score_prints_and_writes_the_json(gt_file, tmp_path):

@@ -1,5 +1,5 @@
-"""`cli score --format maptrv2|cgnet`: other codebases' result files, written here from the ground truth in
-each codebase's own conventions (docs/EXTERNAL.md), scored as they are."""
+"""`cli score --format maptrv2|cgnet` (or auto, the default): other codebases' result files, written here
+from the ground truth in each codebase's own conventions (docs/EXTERNAL.md), scored as they are."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.external import merge_equal_points
+from benchmark.formats.cgnet_json import merge_equal_points
 from benchmark.graph_table import graphs_from_table, read_graph_table
 from benchmark.metric.params import MetricParams
 from benchmark.score import score, score_pairs
@@ -279,9 +279,9 @@ def test_unknown_ids_pickles_and_formats_are_refused(synth_prepared, tmp_path):
         with pytest.raises(ValueError, match="results.pkl: a pickle, refused: reading one can run code"):
             score(pickled, data, fmt=fmt)
     with pytest.raises(ValueError, match="u.json: a JSON file, not a graph table; pass --format"):
-        score(unknown, data)
+        score(unknown, data, fmt="graph")
     with pytest.raises(ValueError, match="--min-score: only for a result file"):
-        score(unknown, data, min_score=0.5)
+        score(unknown, data, fmt="graph", min_score=0.5)
     with pytest.raises(ValueError, match="--class-name boundary: not a cgnet class"):
         score(unknown, data, fmt="cgnet", class_name="boundary")
 

@@ -1,15 +1,14 @@
-"""Result files of other codebases, MapTRv2 / LaneGAP and CGNet JSON: their formats and classes, their vectors
-read, their sample ids matched to our frames and converted to our lane graphs (for benchmark/predictions.py).
+"""What the result JSON of MapTRv2 / LaneGAP and of CGNet share, for their readers (maptrv2_json.py,
+cgnet_json.py): the schema's vectors read, their sample ids matched to our frames, converted to our lane
+graphs by the codebase's own way of building one (a `Codebase`), and scored frame by frame with their scores.
 
 Both codebases write `<work dir>/pts_bbox/nuscmap_results.json` (MapTRv2 on AV2: `av2map_results.json`)
 with mmcv.dump: {"meta": ..., "results": [{"sample_token": ..., "vectors": [{"pts": [[x, y(, z)], ...],
 "pts_num": 20, "cls_name": "centerline", "type": 3, "confidence_level": 0.83}, ...]}, ...]}.
 docs/EXTERNAL.md is the user's page; what each step does and why:
 
-- A MapTRv2 centerline is a whole lane path (its ground truth is every start-to-end path), so its graph
-  is Path2Graph's (benchmark/graphs/path2graph.py, the parameters our LaneGAP's post-processing uses).
-- A CGNet centerline is a piece whose linked endpoints its decoder already snapped to one coordinate, and
-  CGNet builds its graph by merging exactly equal points: `merge_equal_points` does the same.
+- A MapTRv2 centerline is a whole lane path, whose graph is Path2Graph's; a CGNet centerline a piece
+  with snapped ends, whose graph merges exactly equal points (each codebase's module).
 - Frames: a nuScenes sample token is looked up in the prepared `frames` table (column sample_token); an
   AV2 `<log_id>_<lidar timestamp ns>` is our `av2/<log_id>/<timestamp ns>`.
 - Points: nuScenes results are in the LIDAR_TOP frame, which is our BEV frame (x right, y forward); AV2
@@ -22,34 +21,45 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from benchmark.metric.densify import identical_points
+from benchmark.formats.base import (
+    FormatError,
+    FramePrediction,
+    GroundTruth,
+    Options,
+    PredictionFormat,
+    Predictions,
+    Source,
+    Swept,
+)
+from benchmark.graph_table import default_range
 from pipeline import io
 from pipeline.geometry import Range, clip_polylines
-from pipeline.lane_graph import LaneGraph, graph_of_edges
+from pipeline.lane_graph import LaneGraph
 
-FORMATS = ("graph", "maptrv2", "cgnet")
-CLASSES = {  # each codebase's map classes (MapTRv2's `_w_centerline` configs; CGNet's config)
-    "maptrv2": ("divider", "ped_crossing", "boundary", "centerline"),
-    "cgnet": ("centerline",),
-}
-# The default kept score of each format, from that codebase's own post-processing, never tuned here:
-# MapTRv2's prediction drawing (tools/maptrv2/nusc_vis_pred.py and av2_vis_pred.py, --score-thresh) and
-# CGNet's decoder (configs/cgnet/cgnet_ep110.py, score_threshold, before it snaps and builds its graph).
-MIN_SCORE = {"maptrv2": 0.4, "cgnet": 0.3}
-MODELING = {"graph": "graph", "maptrv2": "path", "cgnet": "piece"}
-FORMAT_NAMES = {"graph": "graph table", "maptrv2": "MapTRv2 / LaneGAP JSON", "cgnet": "CGNet JSON"}
-SWEEP = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)  # `--sweep`'s kept scores
-PICKLE_SUFFIXES = (".pkl", ".pickle")
+# one frame's (graph, each edge's score) from its clipped vectors and their scores; module-level (picklable)
+Build = Callable[[list[np.ndarray], np.ndarray], tuple[LaneGraph, np.ndarray]]
 
 
-class ResultFileError(ValueError):
+class ResultFileError(FormatError):
     """A result file that cannot be scored; the message names the file and, where known, the sample."""
+
+
+@dataclass(frozen=True)
+class Codebase:
+    """What one codebase's result JSON means: its map classes, its own default kept score and how it builds
+    a frame's lane graph from the kept vectors."""
+
+    name: str  # the --format word
+    classes: tuple[str, ...]
+    min_score: float  # the codebase's own post-processing's, never tuned here
+    build: Build
 
 
 @dataclass
@@ -64,68 +74,40 @@ class Vectors:
     read: int  # vectors in the file, every class
 
 
-def refuse_pickle(path: Path) -> None:
-    """A pickle can run code when read: refused by name and by its first byte (protocol 2+ opcode)."""
-    if path.is_file():
-        with open(path, "rb") as file:
-            first = file.read(1)
-        if path.suffix.lower() in PICKLE_SUFFIXES or first == b"\x80":
-            raise ResultFileError(
-                f"{path}: a pickle, refused: reading one can run code. Write the results as JSON in the "
-                "schema of MapTRv2's nuscmap_results.json and pass --format maptrv2 or cgnet "
-                "(docs/EXTERNAL.md)"
-            )
-
-
-def detect_format(path: Path) -> tuple[str, dict | None]:
-    """`--format auto`: (format, the parsed JSON or None). graph for Parquet (a file or folder); for JSON,
-    maptrv2 when its centerline is MapTRv2's class 3 or other MapTRv2 classes appear, cgnet when every
-    vector is a class-0 centerline."""
-    path = Path(path)
-    refuse_pickle(path)
-    if path.is_dir() or not path.is_file():
-        return "graph", None  # a folder of shards or a prepared dataset; a missing path fails in the reader
-    with open(path, "rb") as file:
-        head = file.read(4)
-    if head == b"PAR1":
-        return "graph", None
-    data = load_json(path)
-    records = [r for r in data["results"] if isinstance(r, dict) and isinstance(r.get("vectors"), list)]
-    kinds = {(v.get("cls_name"), v.get("type")) for r in records for v in r["vectors"] if isinstance(v, dict)}
-    if any(name in CLASSES["maptrv2"][:3] for name, _ in kinds) or ("centerline", 3) in kinds:
-        return "maptrv2", data
-    if kinds and kinds <= {("centerline", 0)}:
-        return "cgnet", data
-    raise ResultFileError(
-        f"{path}: --format auto cannot tell MapTRv2 from CGNet (classes {sorted(map(str, kinds))[:4]}); "
-        "pass --format maptrv2 or --format cgnet"
-    )
-
-
-def load_json(path: Path) -> dict:
+def vector_kinds(source: Source) -> set[tuple[object, object]] | None:
+    """Detection's look at a file: the (cls_name, type) of its vectors, or None when it is not a JSON file
+    with a results list."""
     try:
-        with open(path, "rb") as file:
-            data = json.load(file)
+        data = source.json()
+    except (ValueError, OSError):
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("results"), list):
+        return None
+    records = [r for r in data["results"] if isinstance(r, dict) and isinstance(r.get("vectors"), list)]
+    return {(v.get("cls_name"), v.get("type")) for r in records for v in r["vectors"] if isinstance(v, dict)}
+
+
+def load_json(source: Source) -> dict:
+    try:
+        data = source.json()
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise ResultFileError(f"{path}: not a JSON result file ({error})") from error
+        raise ResultFileError(f"{source.path}: not a JSON result file ({error})") from error
     if not isinstance(data, dict) or not isinstance(data.get("results"), list):
         raise ResultFileError(
-            f'{path}: no "results" list: not a MapTRv2 / CGNet result file ({{"meta": ..., "results": '
+            f'{source.path}: no "results" list: not a MapTRv2 / CGNet result file ({{"meta": ..., "results": '
             '[{"sample_token": ..., "vectors": [...]}, ...]})'
         )
     return data
 
 
-def read_vectors(path: Path, fmt: str, class_name: str, data: dict | None = None) -> Vectors:
-    """The vectors of `class_name` (from `data`, the file parsed already, if given), after checking every
-    record; the first bad one raises one line naming the file, the sample and the field. Other classes'
-    vectors are counted, their points unread."""
-    path = Path(path)
-    refuse_pickle(path)
+def read_vectors(source: Source, codebase: Codebase, class_name: str) -> Vectors:
+    """The vectors of `class_name`, after checking every record; the first bad one raises one line naming
+    the file, the sample and the field. Other classes' vectors are counted, their points unread."""
+    path, fmt, classes = source.path, codebase.name, codebase.classes
+    source.refuse_pickle()
     if not path.is_file():
         raise ResultFileError(f"{path}: no such file")
-    classes = CLASSES[fmt]
-    data = load_json(path) if data is None else data
+    data = load_json(source)
     tokens, sample, scores, chains = [], [], [], []
     read = 0
     for index, record in enumerate(data["results"]):
@@ -220,35 +202,6 @@ def frame_ids_of(tokens: list[str], gt_path: Path, path: Path) -> tuple[list[str
     return ids, dataset
 
 
-def merge_equal_points(pieces: list[np.ndarray]) -> LaneGraph:
-    """CGNet's graph of its snapped pieces: points at exactly equal coordinates are one vertex, each piece's
-    consecutive points an edge; self-loops and repeated edges dropped."""
-    return merge_equal_points_scored(pieces, None)[0]
-
-
-def merge_equal_points_scored(pieces: list[np.ndarray], scores=None) -> tuple[LaneGraph, np.ndarray]:
-    """(merge_equal_points' graph, each of its edges' score): the score of the piece it came from, the
-    highest where pieces repeat it (`scores`: one per piece; None: every score 0.0)."""
-    piece_score = np.zeros(len(pieces)) if scores is None else np.asarray(scores, np.float64)
-    if piece_score.shape != (len(pieces),):
-        raise ValueError(f"scores: one per piece ({len(pieces)}) is needed, not shape {piece_score.shape}")
-    long = [i for i, p in enumerate(pieces) if len(p) >= 2]
-    pieces, piece_score = [pieces[i] for i in long], piece_score[long]
-    if not pieces:
-        return LaneGraph.empty(), np.zeros(0)
-    xy = np.concatenate(pieces) + 0.0  # no -0.0
-    vertex, n = identical_points(xy)
-    first = np.full(n, len(xy))
-    np.minimum.at(first, vertex, np.arange(len(xy)))
-    sizes = np.array([len(p) for p in pieces])
-    is_last = np.zeros(len(xy), bool)
-    is_last[np.cumsum(sizes) - 1] = True
-    inner = ~is_last[:-1]
-    src, dst = vertex[:-1][inner], vertex[1:][inner]
-    edge_score = np.repeat(piece_score, sizes)[:-1][inner]
-    return graph_of_edges(xy[first, 0], xy[first, 1], src, dst, edge_score)
-
-
 @dataclass
 class Converted:
     graphs: dict[str, LaneGraph]  # by frame id, every sample of the file (empty where nothing was kept)
@@ -257,8 +210,8 @@ class Converted:
     edge_scores: dict[str, np.ndarray]  # by frame id, each graph edge's score (its src / dst order)
 
 
-def to_graphs(vectors: Vectors, frame_ids: list[str], fmt: str, dataset: str, rng: Range, min_score: float,
-              workers: int = 1) -> Converted:  # fmt: skip
+def to_graphs(vectors: Vectors, frame_ids: list[str], build: Build, dataset: str, rng: Range,
+              min_score: float, workers: int = 1) -> Converted:  # fmt: skip
     """Each sample's lane graph from its vectors above min_score, in our BEV frame, clipped to rng, with each
     edge's score (build_graphs); the graphs built in `workers` processes."""
     kept = vectors.scores > min_score
@@ -288,25 +241,79 @@ def to_graphs(vectors: Vectors, frame_ids: list[str], fmt: str, dataset: str, rn
         chunks = [frames[i : i + size] for i in range(0, len(frames), size)]
         score_chunks = [scores[i : i + size] for i in range(0, len(scores), size)]
         with ProcessPoolExecutor(workers) as pool:
-            parts = pool.map(build_graphs, chunks, [fmt] * len(chunks), score_chunks)
+            parts = pool.map(build_graphs, chunks, [build] * len(chunks), score_chunks)
             built = [g for part in parts for g in part]
     else:
-        built = build_graphs(frames, fmt, scores)
+        built = build_graphs(frames, build, scores)
     return Converted(
         {f: graph for f, (graph, _) in zip(frame_ids, built)}, len(keep), int(outside.sum()),
         {f: edge_scores for f, (_, edge_scores) in zip(frame_ids, built)},
     )  # fmt: skip
 
 
-def build_graphs(frames: list[list[np.ndarray]], fmt: str,
+def build_graphs(frames: list[list[np.ndarray]], build: Build,
                  scores: list[np.ndarray]) -> list[tuple[LaneGraph, np.ndarray]]:  # fmt: skip
-    """Each frame's (graph, its edges' scores) from its clipped vectors and their scores: Path2Graph for
-    MapTRv2's paths, equal points merged for CGNet's pieces; an edge takes the highest score of the vectors
-    that produce it."""
-    from benchmark.graphs.path2graph import path2graph_scored  # loaded only where a MapTRv2 file is converted
-
-    build = path2graph_scored if fmt == "maptrv2" else merge_equal_points_scored
+    """Each frame's (graph, its edges' scores) from its clipped vectors and their scores, built as the
+    codebase builds one; an edge takes the highest score of the vectors that produce it."""
     return [
         build(pieces, score) if pieces else (LaneGraph.empty(), np.zeros(0))
         for pieces, score in zip(frames, scores)
     ]
+
+
+def check(codebase: Codebase, options: Options) -> str | None:
+    """--class-name names one of the codebase's classes (--min-score and --sweep apply to every one)."""
+    class_name = options.class_name or "centerline"
+    if class_name not in codebase.classes:
+        return f"--class-name {class_name}: not a {codebase.name} class ({', '.join(codebase.classes)})"
+    return None
+
+
+def read(fmt: PredictionFormat, codebase: Codebase, source: Source, options: Options,
+         gt: GroundTruth) -> Predictions:  # fmt: skip
+    """The frames of the file alone, converted at the kept score (a split's frames it lacks are counted,
+    not scored as empty), each graph with its edges' scores."""
+    path = source.path
+    class_name = options.class_name or "centerline"
+    min_score = codebase.min_score if options.min_score is None else options.min_score
+    vectors = read_vectors(source, codebase, class_name)
+    frame_ids, dataset = frame_ids_of(vectors.tokens, gt.path, path)
+    split_of = gt.frame_splits()
+    if gt.split:
+        gt.check_split(split_of)
+        outside = [(t, f) for t, f in zip(vectors.tokens, frame_ids) if split_of[f] != gt.split]
+        if outside:
+            raise ResultFileError(
+                f"{path}: {len(outside)} samples are not of --split {gt.split}, e.g. {outside[0][0]} "
+                f"({outside[0][1]}, split {split_of[outside[0][1]]})"
+            )
+    if not frame_ids:
+        raise ResultFileError(f"{path}: no sample in its results list")
+    splits = sorted({split_of[f] for f in frame_ids})
+    rng = Range.parse(default_range(gt.path))
+
+    def convert(kept_score: float) -> Converted:
+        return to_graphs(vectors, frame_ids, codebase.build, dataset, rng, kept_score, gt.workers)
+
+    def swept(kept_score: float) -> Swept:
+        converted = convert(kept_score)
+        return Swept(kept_score, converted.kept, converted.graphs)
+
+    converted = convert(min_score)
+    in_splits = sum(s in splits for s in split_of.values())
+    return Predictions(
+        frames=[FramePrediction(f, converted.graphs[f], converted.edge_scores[f]) for f in sorted(frame_ids)],
+        splits=splits,
+        frames_predicted=len(frame_ids),
+        frames_missing=0,
+        frames_in_file=len(frame_ids),
+        frames_not_in_file=in_splits - len(frame_ids),
+        format=fmt,
+        source=source,
+        class_name=class_name,
+        min_score=min_score,
+        vectors_read=vectors.read,
+        vectors_kept=converted.kept,
+        points_clipped=converted.clipped,
+        convert=swept,
+    )

@@ -1,0 +1,78 @@
+"""The user guide stays usable: every relative link of README.md and docs/ leads to a file that exists, and
+every `cli <command>` that a guide page's code block names is a command of the command line."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import typer
+
+from cli import app
+
+ROOT = Path(__file__).resolve().parents[1]
+GUIDE = ROOT / "docs" / "guide"
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
+FENCE = re.compile(r"^```[^\n]*\n(.*?)^```", re.M | re.S)
+CLI_COMMAND = re.compile(r"(?:^|[\s$(`;|&])cli ([a-z][a-z_-]*)")
+
+
+def pages() -> list[Path]:
+    return [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+
+
+def relative_links(page: Path) -> list[str]:
+    """The link targets of a Markdown page that point into the repository (no scheme, no bare anchor),
+    less their #anchor; code blocks are left out (their brackets are not links)."""
+    text = FENCE.sub("", page.read_text())
+    targets = [match.group(1) for match in LINK.finditer(text)]
+    return [
+        target.split("#", 1)[0]
+        for target in targets
+        if not re.match(r"^[a-z][a-z0-9+.-]*:", target) and not target.startswith("#")
+    ]
+
+
+def test_every_relative_link_resolves():
+    broken = [
+        f"{page.relative_to(ROOT)}: {target}"
+        for page in pages()
+        for target in relative_links(page)
+        if not (page.parent / target).exists()
+    ]
+    assert broken == []
+
+
+def test_the_link_check_sees_a_broken_link(tmp_path):
+    page = tmp_path / "page.md"
+    page.write_text("[ok](page.md) [gone](missing.md#part) [web](https://example.org) [here](#top)\n"
+                    "```\n[not a link](nowhere.md)\n```\n")  # fmt: skip
+    assert relative_links(page) == ["page.md", "missing.md"]
+
+
+def guide_commands() -> dict[str, list[str]]:
+    """Each guide page's `cli <command>` names, as its code blocks hold them."""
+    found = {}
+    for page in sorted(GUIDE.glob("*.md")):
+        blocks = FENCE.findall(page.read_text())
+        found[page.name] = [name for block in blocks for name in CLI_COMMAND.findall(block)]
+    return found
+
+
+def test_the_guide_has_its_pages_and_names_only_real_commands():
+    commands = set(typer.main.get_command(app).commands)
+    found = guide_commands()
+    assert set(found) == {"README.md", "prepare.md", "train.md", "score.md", "report.md"}
+    for page in ("prepare.md", "train.md", "score.md", "report.md"):
+        assert found[page], f"{page} shows no command"
+    unknown = sorted({f"{page}: cli {name}" for page, names in found.items() for name in names
+                      if name not in commands})  # fmt: skip
+    assert unknown == []
+    # the pages between them show every command
+    assert commands <= {name for names in found.values() for name in names}
+
+
+def test_the_index_lists_every_page():
+    pages_here = {page.name for page in GUIDE.glob("*.md")} - {"README.md"}
+    listed = {target for target in relative_links(GUIDE / "README.md") if "/" not in target}
+    assert listed == pages_here == {"prepare.md", "train.md", "score.md", "report.md"}

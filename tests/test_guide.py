@@ -7,8 +7,11 @@ import re
 from pathlib import Path
 
 import typer
+from typer.testing import CliRunner
 
 from cli import app
+from pipeline.manifest import read_manifest
+from pipeline.splits.leakage import leakage_line
 
 ROOT = Path(__file__).resolve().parents[1]
 GUIDE = ROOT / "docs" / "guide"
@@ -76,3 +79,23 @@ def test_the_index_lists_every_page():
     pages_here = {page.name for page in GUIDE.glob("*.md")} - {"README.md"}
     listed = {target for target in relative_links(GUIDE / "README.md") if "/" not in target}
     assert listed == pages_here == {"prepare.md", "train.md", "score.md", "report.md"}
+
+
+def quoted_leakage_lines(page: Path) -> list[str]:
+    """The leakage lines a page quotes from `cli prepare`'s output, in order."""
+    return [line for line in page.read_text().splitlines() if line.startswith("split scheme ")]
+
+
+def test_prepare_pages_leakage_lines_are_what_prepare_prints(synth_raw, synth_prepared, tmp_path):
+    """prepare.md quotes, after its real-data lines, the lines of the test suite's synthetic data (conftest's
+    synth_raw, AV2) with the default options and with the geographic scheme, as cli prepare prints them."""
+    own = leakage_line(read_manifest(synth_prepared["av2"])["leakage"], "original")
+    args = ["prepare", "--dataset", "av2", "--root", str(synth_raw / "av2" / "sensor"),
+            "--out", str(tmp_path / "geo"), "--split-scheme", "geographic", "--geo-cell", "50",
+            "--geo-seed", "3"]  # fmt: skip
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    (geographic,) = [line for line in result.output.splitlines() if line.startswith("split scheme ")]
+    quoted = quoted_leakage_lines(GUIDE / "prepare.md")
+    assert own in quoted and geographic in quoted
+    assert quoted.index(own) < quoted.index(geographic)

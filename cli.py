@@ -141,8 +141,8 @@ def synth(
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Write a synthetic raw dataset in the real AV2 and nuScenes on-disk formats; the defaults are the
-    learning checks' data (16 training logs x 10 frames 2 s apart, 2 validation logs x 20 frames 1 s apart
-    on a world of their own).
+    learning checks' data (16 training logs x 10 frames 2 s apart, 2 validation logs x 20 frames 1 s apart on
+    a world of their own). Guide: docs/guide/prepare.md.
 
     \b
     Examples:
@@ -237,8 +237,8 @@ def prepare(
     geo_seed: int = typer.Option(0, min=0, help="geographic: the seed of the cells' assignment"),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
-    """Crop lane graphs to the ego frame; write graphs, paths, pieces and rasters to Parquet. A root
-    without logs, and an --out prepared with other options, are refused before any work.
+    """Crop lane graphs to the ego frame; write graphs, paths, pieces and rasters to Parquet. A root without
+    logs, and an --out prepared with other options, are refused before any work. Guide: docs/guide/prepare.md.
 
     \b
     Examples:
@@ -370,9 +370,10 @@ def train(
     processes, and with --json every process prints its line). Validates during training (RUN/val.jsonl,
     RUN/best.pt) and writes TensorBoard events to RUN/tb (tensorboard --logdir RUN). A step whose loss or
     gradient norm is not finite is skipped. --resume goes on with the run's config: an option or --set given
-    is logged in run.json (config_changes), or refused by name where the checkpoint was made otherwise
-    (model, preset, shape, batch size) or config.json was edited; it refuses a dataset prepared with other
-    target parameters, and falls back to checkpoint.prev.pt when checkpoint.pt is damaged.
+    is logged in run.json (config_changes), or refused by name where the checkpoint was made otherwise (model,
+    preset, shape, batch size) or config.json was edited; it refuses a dataset prepared with other target
+    parameters, and falls back to checkpoint.prev.pt when checkpoint.pt is damaged.
+    Guide: docs/guide/train.md.
 
     \b
     Examples:
@@ -437,8 +438,8 @@ def eval_(
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Predict a split, turn the outputs into lane graphs (the model's post-processing), write
-    predictions.parquet, frame_counts.parquet and metrics.json into the run folder; a dataset prepared
-    with other target parameters than the run's is refused (stale data).
+    predictions.parquet, frame_counts.parquet and metrics.json into the run folder; a dataset prepared with
+    other target parameters than the run's is refused (stale data). Guide: docs/guide/train.md.
 
     \b
     Examples:
@@ -483,7 +484,7 @@ def score(
         "--format",
         help="auto: told by the file's content; graph: our graph table; maptrv2: MapTRv2 / LaneGAP's "
         "nuscmap_results.json or av2map_results.json (paths, Path2Graph); cgnet: CGNet's "
-        "nuscmap_results.json (snapped pieces, equal points merged) (docs/EXTERNAL.md)",
+        "nuscmap_results.json (snapped pieces, equal points merged) (docs/guide/score.md)",
     ),
     class_name: str = typer.Option(
         None, show_default="centerline", help="maptrv2 / cgnet: the class of vectors scored, others ignored"
@@ -531,11 +532,10 @@ def score(
     ),
     metric: str = typer.Option("lanegap", help=METRIC_HELP),
 ) -> None:
-    """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md);
-    the JSON records the thresholds and metric_version. Predictions of `cli eval` made by a model trained
-    on other target parameters than the ground truth's are refused (stale data). Result files of
-    MapTRv2 / LaneGAP and CGNet are scored as those codebases write them (docs/EXTERNAL.md); a pickle is
-    refused.
+    """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md); the
+    JSON records the thresholds and metric_version. Predictions of `cli eval` made by a model trained on other
+    target parameters than the ground truth's are refused (stale data). Result files of MapTRv2 / LaneGAP and
+    CGNet are scored as those codebases write them; a pickle is refused. Guide: docs/guide/score.md.
 
     \b
     Examples:
@@ -597,6 +597,7 @@ def roundtrip(
     workers: int = typer.Option(1, min=0, help="Worker processes (0: one per core)"),
 ) -> None:
     """The ground truth through a representation and back, scored against itself (the paper's Tab. 10).
+    Guide: docs/guide/score.md.
 
     \b
     Examples:
@@ -643,6 +644,7 @@ def report(
 ) -> None:
     """The comparison tables and pictures of finished runs (from `cli eval` and `cli roundtrip`) as
     OUT/report.md; prints the main tables (with --reference, the paper's rows beside them).
+    Guide: docs/guide/report.md.
 
     \b
     Examples:
@@ -674,6 +676,7 @@ def viz(
     out: Path = typer.Option(..., help="PNG file to write"),
 ) -> None:
     """One frame: ground truth and prediction side by side in BEV, matched and unmatched vertices coloured.
+    Guide: docs/guide/report.md.
 
     \b
     Examples:

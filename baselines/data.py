@@ -1,4 +1,4 @@
-"""Training samples from a prepared dataset (docs/DATA.md) and the raw sensor files it points to.
+"""Training samples from a prepared dataset (docs/guide/prepare.md) and the raw sensor files it points to.
 
 Real nuScenes / AV2 and the synthetic data go through the same code: images (cv2) resized by the
 paper's ratio (0.5 nuScenes, 0.3 AV2), LiDAR sweeps (nuScenes `.pcd.bin` float32 x 5, AV2 `.feather`)

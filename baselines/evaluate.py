@@ -1,6 +1,6 @@
 """`cli eval`: predict every frame of a split, turn the paths into a lane graph, score it.
 
-Writes RUN_DIR/predictions.parquet (the `graphs` table schema of docs/DATA.md, the format `cli score`
+Writes RUN_DIR/predictions.parquet (the `graphs` table schema of docs/guide/prepare.md, the format `cli score`
 reads; its metadata records the target parameters the run was trained on) and RUN_DIR/metrics.json: the
 TOPO scores plus the parameter count, the frame rates (network only, and with the model's
 post-processing to a lane graph), the device, the training's effective batch size, the config and,

@@ -2,7 +2,7 @@
 Also what a prepared dataset says of them: the perception range its graphs were cut to.
 
 A graph table has one row per frame: `frame_id: string, x: list<float32>, y: list<float32>,
-src: list<int32>, dst: list<int32>` (docs/DATA.md). The ground truth is the `graphs` table of a
+src: list<int32>, dst: list<int32>` (docs/guide/prepare.md). The ground truth is the `graphs` table of a
 prepared dataset (a folder) or one such file; predictions are one file (or a folder of shards).
 Predictions written by `cli eval` record the target parameters of the dataset their model was trained on
 (TARGETS_KEY in the Parquet metadata).

@@ -81,8 +81,8 @@ def is_synthetic(sensor_root: Path) -> bool:
 
 @dataclass
 class PreparedData:
-    """A prepared dataset (docs/DATA.md), its manifest read once: the folder, the dataset kind, the raw
-    sensor root it was prepared from, the range it was cropped to and its target parameters."""
+    """A prepared dataset (docs/guide/prepare.md), its manifest read once: the folder, the dataset kind, the
+    raw sensor root it was prepared from, the range it was cropped to and its target parameters."""
 
     path: Path
     manifest: dict = field(repr=False)

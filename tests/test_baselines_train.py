@@ -1,6 +1,6 @@
 """Data loading, training loop, resume and DDP of the baselines on a toy prepared dataset.
 
-The toy dataset is written here (Parquet tables in the docs/DATA.md schema, JPEG images, AV2-style
+The toy dataset is written here (Parquet tables in the docs/guide/prepare.md schema, JPEG images, AV2-style
 LiDAR feathers), so these tests need neither `cli synth` nor `cli prepare`.
 """
 

@@ -10,15 +10,16 @@ real AV2 sweep with real calibration, from ../shared/data, go through `cli prepa
   the LiDAR's ground returns, and the ground plane (`frames.ground_slope`: LIDAR_TOP is pitched on the ego)
   within 0.2 m of its road returns from y = -30 to 30 m, where the camera encoder's sampling points land on
   the road in the images.
-- AV2: the float16 sweep comes out as the av2 API's egovehicle points turned by +90 deg (docs/DATA.md,
-  1e-3 m); its projection into each ring camera equals `PinholeCamera.project_ego_to_img` within 0.01 px
-  (0.5) of the resized image (blank JPEGs of each camera's calibrated size stand in for the unpublished
-  images); `frames.ground_z` is within 0.2 m of the sweep's ground returns (the ground is level: slope 0).
+- AV2: the float16 sweep comes out as the av2 API's egovehicle points turned by +90 deg
+  (docs/guide/prepare.md, 1e-3 m); its projection into each ring camera equals
+  `PinholeCamera.project_ego_to_img` within 0.01 px (0.5) of the resized image (blank JPEGs of each camera's
+  calibrated size stand in for the unpublished images); `frames.ground_z` is within 0.2 m of the sweep's
+  ground returns (the ground is level: slope 0).
 - The loader's images (every preset's scale, JPEG decoded at 1/2 or 1/8) show the photograph where their
   intrinsics say, within 0.1 px.
 
 The fixtures (tests/conftest.py) skip, naming the missing path, without ../shared/data. The pictures of
-docs/REAL_SENSORS.md come from `test_pictures` with LANEGRAPH_REAL_SENSOR_FIGURES=docs.
+docs/guide/prepare.md come from `test_pictures` with LANEGRAPH_REAL_SENSOR_FIGURES=docs.
 """
 
 from __future__ import annotations
@@ -279,7 +280,7 @@ def test_nuscenes_ground_plane_is_the_calibrated_ego_plane(real_nuscenes_prepare
 def test_nuscenes_ground_plane_is_on_the_lidar_road_and_so_are_the_sampling_points(
     real_nuscenes_prepared, real_nuscenes_keyframe
 ):
-    """A finding of the real key frame, fixed (docs/REAL_SENSORS.md): LIDAR_TOP is mounted on the ego pitched
+    """A finding of the real key frame, fixed (docs/guide/prepare.md): LIDAR_TOP is mounted on the ego pitched
     1.4 deg nose-down, so that in the BEV frame (LIDAR_TOP's) the road, the ego's ground plane, rises 2.4 %
     forward; `cli prepare` records that plane (frames.ground_z, ground_slope) and the camera encoder lays its
     sampling points on it (`above_ground_to_bev`, fed by the loader's batch). Per 5 m of y along the ego's
@@ -347,7 +348,7 @@ def av2_log_dir(root: Path, frame: dict) -> Path:
 
 def av2_sweep_bev(root: Path, frame: dict) -> np.ndarray:
     """The av2 API's egovehicle points of the sweep (float64), turned into the BEV frame by the documented
-    AV2 convention (docs/DATA.md): x_bev = -y_av2, y_bev = x_av2."""
+    AV2 convention (docs/guide/prepare.md): x_bev = -y_av2, y_bev = x_av2."""
     from av2.utils.io import read_lidar_sweep
 
     xyz = read_lidar_sweep(root / frame["lidar_path"], attrib_spec="xyz")
@@ -575,7 +576,7 @@ def av2_picture(root: Path, prepared: Path, out: Path) -> dict:
 def test_pictures(
     real_nuscenes_keyframe, real_nuscenes_prepared, real_av2_sweep_root, real_av2_sweep_prepared, tmp_path
 ):
-    """Both pictures of docs/REAL_SENSORS.md, written to tmp_path (and to LANEGRAPH_REAL_SENSOR_FIGURES when
+    """Both pictures of docs/guide/prepare.md, written to tmp_path (and to LANEGRAPH_REAL_SENSOR_FIGURES when
     set, e.g. docs): each under 600 KB, every camera showing LiDAR returns, the front cameras the BEV grid."""
     folders = [tmp_path] + ([Path(FIGURES)] if FIGURES else [])
     for folder in folders:

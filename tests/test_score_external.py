@@ -1,5 +1,5 @@
 """`cli score --format maptrv2|cgnet` (or auto, the default): other codebases' result files, written here
-from the ground truth in each codebase's own conventions (docs/EXTERNAL.md), scored as they are."""
+from the ground truth in each codebase's own conventions (docs/guide/score.md), scored as they are."""
 
 from __future__ import annotations
 

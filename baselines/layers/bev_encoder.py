@@ -7,7 +7,7 @@
 - Fusion: both maps, fused by a convolution.
 
 BEV map layout: row 0 is the front edge (y_max), column 0 the left edge (x_min), as the rasters of
-docs/DATA.md. All of it is plain PyTorch (no custom CUDA op).
+docs/guide/prepare.md. All of it is plain PyTorch (no custom CUDA op).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ direction map", LaneGAP's appendix) instead of HDMapNet's 37-way classification.
 The loss: cross-entropy on the prepared lane raster, L2 on the direction at lane pixels.
 The post-processing: the thresholded mask and the predicted directions through Pixel2Graph.
 
-Conventions (docs/DATA.md): outputs are on the raster grid itself, row 0 the front edge (y max),
+Conventions (docs/guide/prepare.md): outputs are on the raster grid itself, row 0 the front edge (y max),
 column 0 the left edge (x min). HDMapNet's own canvas is transposed to this one (x forward along its
 columns); nothing here uses it. The direction (cos, sin) is in the BEV frame (x right, y forward), not
 in image coordinates, where rows run down and so flip the sign of the y component.

@@ -1,8 +1,8 @@
 """What the piece-wise baselines (MapTR: polylines, STSU: Bezier curves) share: the model, its
 association head, the criterion and the post-processing through Piece2Graph.
 
-A piece is a maximal lane stretch between junctions (docs/DATA.md); a lane graph is its pieces plus the
-links "piece i ends where piece j starts". The model: the shared BEV encoder, the shared query decoder
+A piece is a maximal lane stretch between junctions (docs/guide/prepare.md); a lane graph is its pieces plus
+the links "piece i ends where piece j starts". The model: the shared BEV encoder, the shared query decoder
 regressing every piece in driving order, and STSU's association head scoring every ordered pair of
 queries as a link. The criterion (DETR's SetCriterion): per decoder layer, Hungarian matching, focal
 classification and L1 on the matched pieces; on the last layer, binary cross-entropy of the matched

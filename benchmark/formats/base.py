@@ -84,7 +84,8 @@ class Source:
             return None
         return (
             f"{self.path}: a pickle, refused: reading one can run code. Write the results as JSON in the "
-            "schema of MapTRv2's nuscmap_results.json and pass --format maptrv2 or cgnet (docs/EXTERNAL.md)"
+            "schema of MapTRv2's nuscmap_results.json and pass --format maptrv2 or cgnet "
+            "(docs/guide/score.md)"
         )
 
     def refuse_pickle(self) -> None:

@@ -1,7 +1,7 @@
 """CGNet's result JSON (`--format cgnet`): `pts_bbox/nuscmap_results.json` of XiaoMi/CGNet, one class,
 centerline (type 0), each vector a piece whose linked endpoints CGNet's decoder already snapped to one
 coordinate. Its graph is the one CGNet builds itself: points at exactly equal coordinates are one vertex
-(`merge_equal_points`). The schema's reading is result_json.py's; docs/EXTERNAL.md is the user's page.
+(`merge_equal_points`). The schema's reading is result_json.py's; docs/guide/score.md is the user's page.
 """
 
 from __future__ import annotations

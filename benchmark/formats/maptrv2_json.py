@@ -2,7 +2,7 @@
 `av2map_results.json`) of MapTRv2's `_w_centerline` configs, four classes, each centerline (type 3) a whole
 lane path, start to end (its ground truth is every start-to-end path). Its graph is Path2Graph's
 (benchmark/graphs/path2graph.py, the parameters our LaneGAP's post-processing uses). The schema's reading
-is result_json.py's; docs/EXTERNAL.md is the user's page.
+is result_json.py's; docs/guide/score.md is the user's page.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ graphs by the codebase's own way of building one (a `Codebase`), and scored fram
 Both codebases write `<work dir>/pts_bbox/nuscmap_results.json` (MapTRv2 on AV2: `av2map_results.json`)
 with mmcv.dump: {"meta": ..., "results": [{"sample_token": ..., "vectors": [{"pts": [[x, y(, z)], ...],
 "pts_num": 20, "cls_name": "centerline", "type": 3, "confidence_level": 0.83}, ...]}, ...]}.
-docs/EXTERNAL.md is the user's page; what each step does and why:
+docs/guide/score.md is the user's page; what each step does and why:
 
 - A MapTRv2 centerline is a whole lane path, whose graph is Path2Graph's; a CGNet centerline a piece
   with snapped ends, whose graph merges exactly equal points (each codebase's module).

@@ -21,7 +21,8 @@
    next to it, and edges join only the turns that a lane can take, so that crossing lanes stay apart.
 7. Simplification: Douglas-Peucker with a tolerance of `tolerance` metres (skimage
    approximate_polygon); the ends stay, so branches still meet at their nodes.
-Pixel (r, c) has its centre at x = x_min + (c + 0.5) * res, y = y_max - (r + 0.5) * res (docs/DATA.md).
+Pixel (r, c) has its centre at x = x_min + (c + 0.5) * res, y = y_max - (r + 0.5) * res
+(docs/guide/prepare.md).
 """
 
 from __future__ import annotations

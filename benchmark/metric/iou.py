@@ -39,7 +39,7 @@ def _draw(xy, src, dst, x_min, y_max, res, rows, cols, half_width):
 
 
 def draw(graph: LaneGraph, params: MetricParams) -> np.ndarray:
-    """The graph on the BEV grid of docs/DATA.md, params.miou_line_width wide (cells by centre)."""
+    """The graph on the BEV grid of docs/guide/prepare.md, params.miou_line_width wide (cells by centre)."""
     crop = Range.parse(params.bev_range)
     res = params.miou_resolution
     rows, cols = round((crop.y_max - crop.y_min) / res), round((crop.x_max - crop.x_min) / res)

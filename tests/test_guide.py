@@ -46,11 +46,33 @@ def test_every_relative_link_resolves():
     assert broken == []
 
 
+def anchors(page: Path) -> set[str]:
+    """The #anchors of a page's headings, as GitHub makes them: lower case, punctuation but - and _ dropped,
+    each space a hyphen."""
+    text = FENCE.sub("", page.read_text())
+    headings = re.findall(r"^#+ (.+)$", text, re.M)
+    return {re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-") for heading in headings}
+
+
+def test_every_anchor_into_the_guide_exists():
+    """A link to a heading of a guide page (prepare.md#splits-and-leakage) names one that is there."""
+    broken = []
+    for page in pages():
+        for target in LINK.findall(FENCE.sub("", page.read_text())):
+            path, _, anchor = target.partition("#")
+            into = (page.parent / path).resolve() if path else page
+            if anchor and into.parent == GUIDE and anchor not in anchors(into):
+                broken.append(f"{page.relative_to(ROOT)}: {target}")
+    assert broken == []
+
+
 def test_the_link_check_sees_a_broken_link(tmp_path):
     page = tmp_path / "page.md"
     page.write_text("[ok](page.md) [gone](missing.md#part) [web](https://example.org) [here](#top)\n"
                     "```\n[not a link](nowhere.md)\n```\n")  # fmt: skip
     assert relative_links(page) == ["page.md", "missing.md"]
+    page.write_text("# Adding to a folder, and `--overwrite`\n## The metric variants: `--metric`\n")
+    assert anchors(page) == {"adding-to-a-folder-and---overwrite", "the-metric-variants---metric"}
 
 
 def guide_commands() -> dict[str, list[str]]:

@@ -103,6 +103,8 @@ def test_the_json_is_parsed_once_whichever_format_asks(files, monkeypatch):
     monkeypatch.setattr(json, "load", lambda file: loads.append(1) or original(file))
     assert formats.choose(source).name == "cgnet" and source.json()["results"][0]["sample_token"] == "t"
     assert len(loads) == 1
+    # the reader takes it last and lets it go: the parsed file is not held while the frames are scored
+    assert source.json(keep=False) is not None and len(loads) == 1 and source._parsed is None
 
 
 def test_auto_is_the_default_and_scores_as_the_named_format(tmp_path):

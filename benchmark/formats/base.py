@@ -59,8 +59,9 @@ class Source:
         with open(self.path, "rb") as file:
             return file.read(size)
 
-    def json(self) -> object:
-        """The file parsed as JSON, once; a file that is not JSON raises its parse error each time."""
+    def json(self, keep: bool = True) -> object:
+        """The file parsed as JSON, once; a file that is not JSON raises its parse error each time. `keep`
+        False: the last asker, after which the parsed file is let go (it can be most of the memory held)."""
         if not self._tried:
             with open(self.path, "rb") as file:  # an OSError is the caller's, never kept
                 try:
@@ -68,9 +69,12 @@ class Source:
                 except (json.JSONDecodeError, UnicodeDecodeError) as error:
                     self._parsed = error
             self._tried = True
-        if isinstance(self._parsed, Exception):
-            raise self._parsed
-        return self._parsed
+        parsed = self._parsed
+        if not keep:
+            self._parsed, self._tried = None, False
+        if isinstance(parsed, Exception):
+            raise parsed
+        return parsed
 
     def is_pickle(self) -> bool:
         """A pickle by its name or by its first byte (the opcode of protocol 2 and later)."""

@@ -88,8 +88,9 @@ def vector_kinds(source: Source) -> set[tuple[object, object]] | None:
 
 
 def load_json(source: Source) -> dict:
+    """The file's JSON for its reader, the last to ask for it."""
     try:
-        data = source.json()
+        data = source.json(keep=False)
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise ResultFileError(f"{source.path}: not a JSON result file ({error})") from error
     if not isinstance(data, dict) or not isinstance(data.get("results"), list):

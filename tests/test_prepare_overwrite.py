@@ -13,13 +13,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.feather as feather
 import pytest
-from typer.testing import CliRunner
 
 import pipeline.manifest as output_folder
-from cli import app
 from pipeline.io import read_table
 from pipeline.prepare import prepare
 from pipeline.targets import TargetOptions
+from tests.test_faults import cli, files, one_error_line
 
 
 @pytest.fixture(scope="module")
@@ -36,22 +35,6 @@ def raw(tmp_path_factory) -> Path:
 def logs_of(raw: Path) -> dict[str, str]:
     """{split: log id} of the AV2 logs."""
     return {split: next((raw / "av2" / "sensor" / split).iterdir()).name for split in ("train", "val")}
-
-
-def cli(*args: object):
-    return CliRunner().invoke(app, [str(a) for a in args])
-
-
-def one_error_line(result, *names: str) -> str:
-    assert result.exit_code == 1, result.output
-    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and "Traceback" not in result.output, result.output
-    assert all(name in errors[0] for name in names), errors[0]
-    return errors[0]
-
-
-def files(folder: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 def frames_by_log(out: Path) -> dict[str, str]:

@@ -1,5 +1,6 @@
-"""The user guide stays usable: every relative link of README.md and docs/ leads to a file that exists, and
-every `cli <command>` that a guide page's code block names is a command of the command line."""
+"""The user guide stays usable: every relative link of README.md and docs/ leads to a file that exists,
+every `cli <command>` that a guide page's code block names is a command of the command line, and the README
+stays a short page without history."""
 
 from __future__ import annotations
 
@@ -18,6 +19,10 @@ GUIDE = ROOT / "docs" / "guide"
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 FENCE = re.compile(r"^```[^\n]*\n(.*?)^```", re.M | re.S)
 CLI_COMMAND = re.compile(r"(?:^|[\s$(`;|&])cli ([a-z][a-z_-]*)")
+# A commit hash as git abbreviates or spells it: 7-40 hex digits, at least one letter and one digit (so
+# that a timestamp or a count is not one).
+COMMIT = re.compile(r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}\b")
+README_MOST_LINES = 220
 
 
 def pages() -> list[Path]:
@@ -121,3 +126,25 @@ def test_prepare_pages_leakage_lines_are_what_prepare_prints(synth_raw, synth_pr
     quoted = quoted_leakage_lines(GUIDE / "prepare.md")
     assert own in quoted and geographic in quoted
     assert quoted.index(own) < quoted.index(geographic)
+
+
+def commit_lines(text: str) -> list[str]:
+    """The lines of a text that name a commit hash."""
+    return [line for line in text.splitlines() if COMMIT.search(line)]
+
+
+def test_the_readme_is_short_and_names_one_commit():
+    """About 200 lines, and one commit hash only: the demo table's line with its date (history lives in
+    CHANGELOG.md, docs/BENCHMARKS.md and docs/EXPERIMENTS.md)."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= README_MOST_LINES
+    (demo_line,) = commit_lines(text)
+    assert re.search(r"\b20\d\d-\d\d-\d\d\b", demo_line) and "commit" in demo_line
+
+
+def test_the_commit_check_sees_a_hash():
+    text = ("Made on 2026-12-05 at commit 1084dc5.\n"
+            "Frame av2/5f58e02d-e948-3cb0-ac75-b8b5a16e9a0b/315969629259927000, 780 passed\n"
+            "at 9f7fe6f0c8a457f1e2d3c4b5a69788990a1b2c3d\n"
+            "a plain line: deadline 12-22 points, 1234567 frames, commit abc1234x\n")  # fmt: skip
+    assert commit_lines(text) == text.splitlines()[:3]

@@ -196,8 +196,25 @@ def write_tables(
 
 
 def _add_scene(t: _Tables, plan: LogPlan, channels: list[Channel], map_name: str) -> None:
+    """One log's records: its log and scene, one calibration per log and sensor (as in the real tables),
+    and its samples with each channel's ego pose and sample_data."""
+    samples = [t.token("sample", plan.index, k) for k in range(len(plan.frame_ns))]
+    _add_log_and_scene(t, plan, map_name, samples)
+    for c in channels:
+        t.add(
+            "calibrated_sensor",
+            token=t.token("calibrated_sensor", plan.index, c.name),
+            sensor_token=t.token("sensor", c.name),
+            translation=c.translation,
+            rotation=c.rotation,
+            camera_intrinsic=c.intrinsic,
+        )
+    _add_samples(t, plan, channels, samples)
+
+
+def _add_log_and_scene(t: _Tables, plan: LogPlan, map_name: str, samples: list[str]) -> None:
     i = plan.index
-    log_token, scene_token, logfile = t.token("log", i), t.token("scene", i), logfile_name(plan)
+    log_token, logfile = t.token("log", i), logfile_name(plan)
     t.add(
         "log",
         token=log_token,
@@ -206,10 +223,9 @@ def _add_scene(t: _Tables, plan: LogPlan, channels: list[Channel], map_name: str
         date_captured=logfile[5:15],
         location=map_name,
     )
-    samples = [t.token("sample", i, k) for k in range(len(plan.frame_ns))]
     t.add(
         "scene",
-        token=scene_token,
+        token=t.token("scene", i),
         log_token=log_token,
         nbr_samples=len(samples),
         first_sample_token=samples[0],
@@ -217,29 +233,25 @@ def _add_scene(t: _Tables, plan: LogPlan, channels: list[Channel], map_name: str
         name=plan.scene_name,
         description=f"Synthetic, route {plan.route.name}",
     )
-    for c in channels:  # one calibration per log and sensor, as in the real tables
-        t.add(
-            "calibrated_sensor",
-            token=t.token("calibrated_sensor", i, c.name),
-            sensor_token=t.token("sensor", c.name),
-            translation=c.translation,
-            rotation=c.rotation,
-            camera_intrinsic=c.intrinsic,
-        )
+
+
+def _add_samples(t: _Tables, plan: LogPlan, channels: list[Channel], samples: list[str]) -> None:
+    """One sample per key frame and, per channel, its ego pose and sample_data, chained in time."""
+    i = plan.index
     # each sensor's ego poses at its own times (the cameras' precede the sample's: CAMERA_OFFSET_US)
     sensor_ns = {c.name: plan.frame_ns + c.offset_us * 1000 for c in channels}
     ego = {name: plan.ego_at(ns) for name, ns in sensor_ns.items()}
     rotations = {name: yaw_quaternion(poses[:, 2]) for name, poses in ego.items()}
+    data = {c.name: [t.token("sample_data", i, c.name, j) for j in range(len(samples))] for c in channels}
     for k, ns in enumerate(plan.frame_ns):
         t.add(
             "sample",
             token=samples[k],
             timestamp=int(ns) // 1000,
             **_chain(samples, k),
-            scene_token=scene_token,
+            scene_token=t.token("scene", i),
         )
         for c in channels:
-            data = [t.token("sample_data", i, c.name, j) for j in range(len(samples))]
             pose = t.token("ego_pose", i, c.name, k)
             us, xy = int(sensor_ns[c.name][k]) // 1000, ego[c.name][k, :2]
             t.add(
@@ -251,7 +263,7 @@ def _add_scene(t: _Tables, plan: LogPlan, channels: list[Channel], map_name: str
             )
             t.add(
                 "sample_data",
-                token=data[k],
+                token=data[c.name][k],
                 sample_token=samples[k],
                 ego_pose_token=pose,
                 calibrated_sensor_token=t.token("calibrated_sensor", i, c.name),
@@ -261,7 +273,7 @@ def _add_scene(t: _Tables, plan: LogPlan, channels: list[Channel], map_name: str
                 height=c.height,
                 width=c.width,
                 filename=sample_filename(plan, c, int(sensor_ns[c.name][k])),
-                **_chain(data, k),
+                **_chain(data[c.name], k),
             )
 
 

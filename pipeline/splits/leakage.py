@@ -193,6 +193,21 @@ def _shares(distance: np.ndarray, overlapping: np.ndarray, covered: np.ndarray, 
     }
 
 
+@dataclass
+class _Proximity:
+    """Per frame, against the training frames of its city: the distance to the nearest one's position
+    (inf: none), whether its window intersects one's window, and the share of it theirs cover; and the
+    cities whose non-training frames have no training frame to be measured against."""
+
+    distance: np.ndarray
+    overlapping: np.ndarray
+    covered: np.ndarray
+    untrained_cities: set[str]
+
+    def shares(self, members: np.ndarray, range_m: float) -> dict:
+        return _shares(self.distance[members], self.overlapping[members], self.covered[members], range_m)
+
+
 def measure(
     splits: Sequence[str | None], cities: Sequence[str | None], xy: np.ndarray, yaw: np.ndarray, window: Range
 ) -> dict:
@@ -208,6 +223,28 @@ def measure(
     places = np.array([UNKNOWN if c is None else str(c) for c in cities], dtype=object)
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
+    _check_frames(names, places, xy, yaw, window)
+    range_m = half_length(window)
+    head = {"range_m": float(range_m), "window": window.text, "cover_points": COVER_POINTS}
+    split_names, split_of = np.unique(names.astype(str), return_inverse=True)
+    training = np.array([is_training(s) for s in split_names], dtype=bool)
+    train_splits = [str(s) for s, t in zip(split_names, training) if t]
+    if not train_splits:
+        return {"train_splits": [], **head, "splits": {}, "note": NO_TRAINING_NOTE}
+    city_names, city_of = np.unique(places.astype(str), return_inverse=True)
+    proximity = _proximity(city_names, city_of, training[split_of], xy, yaw, window)
+    result = {"train_splits": train_splits, **head, "splits": {}}
+    for s, split in enumerate(split_names):
+        if not training[s]:
+            entry = _split_entry(split_of == s, city_names, city_of, proximity, range_m)
+            result["splits"][str(split)] = entry
+    return result
+
+
+def _check_frames(
+    names: np.ndarray, places: np.ndarray, xy: np.ndarray, yaw: np.ndarray, window: Range
+) -> None:
+    """One split, city, position and heading per frame, all finite, and a window of positive sides."""
     if not len(names) == len(places) == len(xy) == len(yaw):
         raise ValueError(
             f"{len(names)} splits, {len(places)} cities, {len(xy)} positions and {len(yaw)} headings: "
@@ -220,45 +257,45 @@ def measure(
     sides = (window.x_max - window.x_min, window.y_max - window.y_min)
     if not all(math.isfinite(side) and side > 0 for side in sides):
         raise ValueError(f"the window must have positive, finite sides, not {sides[0]} x {sides[1]} m")
-    range_m = half_length(window)
-    head = {"range_m": float(range_m), "window": window.text, "cover_points": COVER_POINTS}
-    split_names, split_of = np.unique(names.astype(str), return_inverse=True)
-    training = np.array([is_training(s) for s in split_names], dtype=bool)
-    train_splits = [str(s) for s, t in zip(split_names, training) if t]
-    if not train_splits:
-        return {"train_splits": [], **head, "splits": {}, "note": NO_TRAINING_NOTE}
-    is_train = training[split_of]
-    city_names, city_of = np.unique(places.astype(str), return_inverse=True)
-    distance = np.full(len(xy), np.inf)
-    overlapping = np.zeros(len(xy), dtype=bool)
-    covered = np.zeros(len(xy))
-    untrained_cities = set()
+
+
+def _proximity(
+    city_names: np.ndarray,
+    city_of: np.ndarray,
+    is_train: np.ndarray,
+    xy: np.ndarray,
+    yaw: np.ndarray,
+    window: Range,
+) -> _Proximity:
+    """Each non-training frame measured against the training frames of its city, a city at a time."""
+    proximity = _Proximity(np.full(len(xy), np.inf), np.zeros(len(xy), dtype=bool), np.zeros(len(xy)), set())
     for c, city in enumerate(city_names):
         in_city = city_of == c
         queries, trains = np.flatnonzero(in_city & ~is_train), np.flatnonzero(in_city & is_train)
         if not len(queries):
             continue
         if not len(trains):
-            untrained_cities.add(str(city))
+            proximity.untrained_cities.add(str(city))
             continue
-        distance[queries] = cKDTree(xy[trains]).query(xy[queries], k=1)[0]
-        overlapping[queries], covered[queries] = window_overlap(
+        proximity.distance[queries] = cKDTree(xy[trains]).query(xy[queries], k=1)[0]
+        proximity.overlapping[queries], proximity.covered[queries] = window_overlap(
             xy[queries], yaw[queries], xy[trains], yaw[trains], window
         )
-    result = {"train_splits": train_splits, **head, "splits": {}}
-    for s, split in enumerate(split_names):
-        if training[s]:
-            continue
-        members = split_of == s
-        entry = _shares(distance[members], overlapping[members], covered[members], range_m)
-        entry["cities"] = {}
-        for c in np.unique(city_of[members]):
-            city, here = str(city_names[c]), members & (city_of == c)
-            entry["cities"][city] = _shares(distance[here], overlapping[here], covered[here], range_m)
-            if city in untrained_cities:
-                entry["cities"][city]["no_training_frames_in_city"] = True
-        result["splits"][str(split)] = entry
-    return result
+    return proximity
+
+
+def _split_entry(
+    members: np.ndarray, city_names: np.ndarray, city_of: np.ndarray, proximity: _Proximity, range_m: float
+) -> dict:
+    """One non-training split's shares (members: its frames' mask), then per city of it its own."""
+    entry = proximity.shares(members, range_m)
+    entry["cities"] = {}
+    for c in np.unique(city_of[members]):
+        city, here = str(city_names[c]), members & (city_of == c)
+        entry["cities"][city] = proximity.shares(here, range_m)
+        if city in proximity.untrained_cities:
+            entry["cities"][city]["no_training_frames_in_city"] = True
+    return entry
 
 
 def yaw_of(rotation_wxyz: np.ndarray) -> np.ndarray:

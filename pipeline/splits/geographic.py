@@ -144,6 +144,19 @@ def _city(xy, cell_m, buffer_m, seed, city, targets, training):
     return frame_split, drop, np.column_stack([cell_xy, cell_split]).astype(np.int64), len(sizes)
 
 
+@dataclass
+class _Assignment:
+    """All cities' assignment: per frame its split index and whether the buffer leaves it out; per city
+    its cells (M, 3), frames left out, group count and the splits it lacks (only cities that lack one)."""
+
+    split_of: np.ndarray
+    dropped: np.ndarray
+    cells: dict[str, np.ndarray]
+    left_out: dict[str, int]
+    groups: dict[str, int]
+    missing: dict[str, list[str]]
+
+
 def geographic(
     cities: Sequence[str],
     xy: np.ndarray,
@@ -164,6 +177,39 @@ def geographic(
     cities = [str(c) for c in cities]
     original = [str(s) for s in original]
     xy = np.asarray(xy, dtype=np.float64)
+    _check_frames(cities, xy, original, cell_m, buffer_m)
+    names = ordered_splits(original)
+    training = _training_of(names)
+    index = {name: i for i, name in enumerate(names)}
+    original_index = np.array([index[s] for s in original], dtype=np.int64)
+    targets = np.bincount(original_index, minlength=len(names)) / len(original)
+
+    city_names, city_of = np.unique(np.array(cities, dtype=object).astype(str), return_inverse=True)
+    assigned = _assign(city_names, city_of, xy, names, targets, training, cell_m, buffer_m, seed)
+    kept = np.bincount(assigned.split_of[~assigned.dropped], minlength=len(names))
+    if empty := [n for i, n in enumerate(names) if kept[i] == 0]:
+        raise ValueError(no_frame_for(empty, names, original_index, city_names, city_of, assigned.cells,
+                                      cell_m, buffer_m))  # fmt: skip
+    shares = {n: float(kept[i] / max(kept.sum(), 1)) for i, n in enumerate(names)}
+    city_shares, city_kept = _city_shares(city_names, city_of, assigned, names)
+    parameters = {
+        "cell_m": float(cell_m),
+        "buffer_m": float(buffer_m),
+        "seed": int(seed),
+        "targets": {n: float(t) for n, t in zip(names, targets)},
+        "grouping": "hilbert",
+        "groups": assigned.groups,
+        "missing": assigned.missing,
+    }
+    split = [None if d else names[s] for s, d in zip(assigned.split_of.tolist(), assigned.dropped.tolist())]
+    left_out = assigned.left_out
+    return GeoSplit(split, assigned.cells, names, left_out, shares, city_shares, city_kept, parameters)
+
+
+def _check_frames(
+    cities: list[str], xy: np.ndarray, original: list[str], cell_m: float, buffer_m: float
+) -> None:
+    """One city, one split and one finite x, y per frame; a positive cell and a buffer of no less than 0."""
     if xy.ndim != 2 or xy.shape[1] != 2 or not len(cities) == len(original) == len(xy):
         raise ValueError(
             f"{len(cities)} cities, {len(original)} splits and positions of shape {xy.shape}: "
@@ -173,7 +219,10 @@ def geographic(
         raise ValueError(f"{int((~np.isfinite(xy).all(axis=1)).sum())} frame positions are not finite")
     if not (np.isfinite(cell_m) and cell_m > 0) or not (np.isfinite(buffer_m) and buffer_m >= 0):
         raise ValueError(f"cell_m must be > 0 and buffer_m >= 0 metres, not {cell_m} and {buffer_m}")
-    names = ordered_splits(original)
+
+
+def _training_of(names: list[str]) -> np.ndarray:
+    """Which of the ordered split names are training splits; at least two splits, one of them training."""
     if len(names) < 2:
         found = f"only {names[0]!r}" if names else "no frames"
         raise ValueError(f"needs frames of at least two original splits to share out, found {found}")
@@ -183,46 +232,45 @@ def geographic(
             f"needs a training split ('train' or a name ending in '_train') among the original "
             f"splits, found {', '.join(map(repr, names))}"
         )
-    index = {name: i for i, name in enumerate(names)}
-    original_index = np.array([index[s] for s in original], dtype=np.int64)
-    targets = np.bincount(original_index, minlength=len(names)) / len(original)
+    return training
 
-    city_names, city_of = np.unique(np.array(cities, dtype=object).astype(str), return_inverse=True)
-    split_of = np.zeros(len(xy), dtype=np.int64)
-    dropped = np.zeros(len(xy), dtype=bool)
-    cells, left_out, groups, missing = {}, {}, {}, {}
+
+def _assign(
+    city_names: np.ndarray,
+    city_of: np.ndarray,
+    xy: np.ndarray,
+    names: list[str],
+    targets: np.ndarray,
+    training: np.ndarray,
+    cell_m: float,
+    buffer_m: float,
+    seed: int,
+) -> _Assignment:
+    """Each city's frames assigned on their own (`_city`), gathered."""
+    assigned = _Assignment(np.zeros(len(xy), dtype=np.int64), np.zeros(len(xy), dtype=bool), {}, {}, {}, {})
     for c, city in enumerate(city_names.tolist()):
         members = np.flatnonzero(city_of == c)
-        frame_split, drop, cells[city], groups[city] = _city(
+        frame_split, drop, assigned.cells[city], assigned.groups[city] = _city(
             xy[members], cell_m, buffer_m, seed, city, targets, training
         )
-        split_of[members], dropped[members] = frame_split, drop
-        left_out[city] = int(drop.sum())
+        assigned.split_of[members], assigned.dropped[members] = frame_split, drop
+        assigned.left_out[city] = int(drop.sum())
         present = set(frame_split[~drop].tolist())
         if absent := [n for i, n in enumerate(names) if i not in present]:
-            missing[city] = absent
+            assigned.missing[city] = absent
+    return assigned
 
-    kept = np.bincount(split_of[~dropped], minlength=len(names))
-    if empty := [n for i, n in enumerate(names) if kept[i] == 0]:
-        raise ValueError(no_frame_for(empty, names, original_index, city_names, city_of, cells, cell_m,
-                                      buffer_m))  # fmt: skip
-    shares = {n: float(kept[i] / max(kept.sum(), 1)) for i, n in enumerate(names)}
+
+def _city_shares(
+    city_names: np.ndarray, city_of: np.ndarray, assigned: _Assignment, names: list[str]
+) -> tuple[dict[str, dict[str, float]], dict[str, int]]:
+    """Per city: each split's share of the city's kept frames, and the number of them."""
     city_shares, city_kept = {}, {}
     for c, city in enumerate(city_names.tolist()):
-        here = np.bincount(split_of[(city_of == c) & ~dropped], minlength=len(names))
+        here = np.bincount(assigned.split_of[(city_of == c) & ~assigned.dropped], minlength=len(names))
         city_kept[city] = int(here.sum())
         city_shares[city] = {n: float(here[i] / max(here.sum(), 1)) for i, n in enumerate(names)}
-    parameters = {
-        "cell_m": float(cell_m),
-        "buffer_m": float(buffer_m),
-        "seed": int(seed),
-        "targets": {n: float(t) for n, t in zip(names, targets)},
-        "grouping": "hilbert",
-        "groups": groups,
-        "missing": missing,
-    }
-    split = [None if d else names[s] for s, d in zip(split_of.tolist(), dropped.tolist())]
-    return GeoSplit(split, cells, names, left_out, shares, city_shares, city_kept, parameters)
+    return city_shares, city_kept
 
 
 def no_frame_for(empty, names, original_index, city_names, city_of, cells, cell_m, buffer_m) -> str:
@@ -267,7 +315,6 @@ def draw_split_map(
     import matplotlib
     import matplotlib.style
     from matplotlib.figure import Figure
-    from matplotlib.lines import Line2D
 
     if cells is not None and not (cell_m and cell_m > 0):
         raise ValueError("draw_split_map needs cell_m (> 0) to draw the cells")
@@ -292,40 +339,54 @@ def draw_split_map(
         for ax, city in zip(axes, city_names):
             members = np.flatnonzero(city_arr == city)
             here, where = split_arr[members], xy[members]
-            handles = []
             if cells is not None and city in cells:
                 _draw_cells(ax, np.asarray(cells[city]).reshape(-1, 3), here, where, float(cell_m), colour)
-            tints = [LEFT_OUT if s is None else colour[s] for s in here]
-            # kept frames in one shuffled (fixed) order, so that mixed splits look mixed; left-out on top
-            left = np.array([s is None for s in here], dtype=bool)
-            for chosen, zorder in ((~left, 3), (left, 4)):
-                at = np.flatnonzero(chosen)[np.random.default_rng(0).permutation(int(chosen.sum()))]
-                if len(at):
-                    ax.scatter(
-                        *where[at].T,
-                        s=5,
-                        c=[tints[i] for i in at],
-                        linewidths=0,
-                        rasterized=True,
-                        zorder=zorder,
-                    )
-            for name in [*names, None]:
-                count = sum(s == name for s in here)
-                if count:
-                    label = f"{'left out' if name is None else name}: {count:,} frames"
-                    tint = LEFT_OUT if name is None else colour[name]
-                    handles.append(Line2D([], [], ls="", marker="o", ms=6, color=tint, label=label))
-            ax.set_aspect("equal", adjustable="datalim")
-            ax.set_title(f"{city} ({len(members):,} frames)", fontsize=11)
-            ax.set_xlabel("x (m)", fontsize=8)
-            ax.set_ylabel("y (m)", fontsize=8)
-            ax.tick_params(labelsize=7)
-            if handles:
-                ax.legend(handles=handles, fontsize=8, loc="best", framealpha=0.85)
+            _draw_city(ax, city, here, where, names, colour)
         total = ", ".join(f"{n} {sum(s == n for s in split):,}" for n in names)
         dropped = sum(s is None for s in split)
         figure.suptitle(f"frames by split: {total}" + (f", left out {dropped:,}" if dropped else ""))
         write_atomic(Path(path), lambda tmp: figure.savefig(tmp, format="png", dpi=DPI))
+
+
+def _draw_city(ax, city: str, here: np.ndarray, where: np.ndarray, names: list[str], colour: dict) -> None:
+    """One city's panel: its frames (here: their splits, where: their x, y) as dots, titled, with a legend
+    of the frame counts per split."""
+    tints = [LEFT_OUT if s is None else colour[s] for s in here]
+    # kept frames in one shuffled (fixed) order, so that mixed splits look mixed; left-out on top
+    left = np.array([s is None for s in here], dtype=bool)
+    for chosen, zorder in ((~left, 3), (left, 4)):
+        at = np.flatnonzero(chosen)[np.random.default_rng(0).permutation(int(chosen.sum()))]
+        if len(at):
+            ax.scatter(
+                *where[at].T,
+                s=5,
+                c=[tints[i] for i in at],
+                linewidths=0,
+                rasterized=True,
+                zorder=zorder,
+            )
+    handles = _legend_handles(here, names, colour)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(f"{city} ({len(here):,} frames)", fontsize=11)
+    ax.set_xlabel("x (m)", fontsize=8)
+    ax.set_ylabel("y (m)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    if handles:
+        ax.legend(handles=handles, fontsize=8, loc="best", framealpha=0.85)
+
+
+def _legend_handles(here: np.ndarray, names: list[str], colour: dict) -> list:
+    """A legend entry per split with frames here, then the left-out frames: "val: 1,234 frames"."""
+    from matplotlib.lines import Line2D
+
+    handles = []
+    for name in [*names, None]:
+        count = sum(s == name for s in here)
+        if count:
+            label = f"{'left out' if name is None else name}: {count:,} frames"
+            tint = LEFT_OUT if name is None else colour[name]
+            handles.append(Line2D([], [], ls="", marker="o", ms=6, color=tint, label=label))
+    return handles
 
 
 def _draw_cells(ax, cells: np.ndarray, here, where, cell_m: float, colour: dict) -> None:

@@ -7,11 +7,10 @@ table takes --json (the result as one JSON line on stdout instead) and says whic
 
 from __future__ import annotations
 
-import json
 import os
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import typer
 
@@ -75,6 +74,13 @@ def bezier_points_check(value: int | None) -> int | None:
     return value
 
 
+# The options that several commands share, help and range alike.
+AsJson = Annotated[bool, typer.Option("--json", help=JSON_HELP)]
+BOOTSTRAP_HELP = "Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
+Bootstrap = Annotated[int, typer.Option(min=0, help=BOOTSTRAP_HELP)]
+WorkersPerCore = Annotated[int, typer.Option(min=0, help="Worker processes (0: one per core)")]
+
+
 def version_text() -> str:
     """The installed package's version, the metric's metric_version and the prepared data's schema_version
     (CHANGELOG.md says what each bump means for old files); imports neither torch nor the models."""
@@ -100,13 +106,9 @@ def print_version(value: bool) -> None:
 @app.callback()
 def main(
     version: bool = typer.Option(
-        False,
-        "--version",
-        callback=print_version,
-        is_eager=True,
-        help="Print the package version, metric_version and the prepared data's schema_version, and exit",
-    ),
-) -> None:
+        False, "--version", callback=print_version, is_eager=True, help="Print the package version, "
+        "metric_version and the prepared data's schema_version, and exit"),
+) -> None:  # fmt: skip
     pass
 
 
@@ -114,32 +116,24 @@ def main(
 def synth(
     out: Path = typer.Option(..., help="Folder to write OUT/av2/sensor/... and OUT/nuscenes/... into"),
     logs: int = typer.Option(
-        18,
-        min=1,
-        help="Logs (AV2) / scenes (nuScenes): 3/4 train, the rest (at most 2) val; nuScenes split names: "
-        "v1.0-mini's up to 8 training logs, else v1.0-trainval's",
-    ),
+        18, min=1, help="Logs (AV2) / scenes (nuScenes): 3/4 train, the rest (at most 2) val; nuScenes "
+        "split names: v1.0-mini's up to 8 training logs, else v1.0-trainval's"),
     frames_per_log: int = typer.Option(10, min=1, help="Key frames per training log"),
     frame_period: float = typer.Option(
-        2.0, min=0.02, help="Seconds between a training log's key frames, a multiple of 0.02"
-    ),
+        2.0, min=0.02, help="Seconds between a training log's key frames, a multiple of 0.02"),
     val_frames_per_log: int = typer.Option(20, min=1, help="Key frames per validation log"),
     val_frame_period: float = typer.Option(
-        1.0, min=0.02, help="Seconds between a validation log's key frames, a multiple of 0.02"
-    ),
+        1.0, min=0.02, help="Seconds between a validation log's key frames, a multiple of 0.02"),
     worlds: int = typer.Option(
-        4, min=1, max=4, help="Procedural worlds, one nuScenes map location / AV2 city each"
-    ),
+        4, min=1, max=4, help="Procedural worlds, one nuScenes map location / AV2 city each"),
     val_worlds: int = typer.Option(
-        1, min=1, help="Worlds that only validation logs drive in (unseen geography), fewer than --worlds"
-    ),
+        1, min=1, help="Worlds that only validation logs drive in (unseen geography), fewer than --worlds"),
     seed: int = typer.Option(
-        0, min=0, help="Random seed of the worlds, routes and sensors: same seed, same bytes"
-    ),
+        0, min=0, help="Random seed of the worlds, routes and sensors: same seed, same bytes"),
     sensors: bool = typer.Option(True, help="Also render camera images and LiDAR sweeps"),
     workers: int = typer.Option(1, min=1, help="Worker processes, one log at a time each (the same bytes)"),
-    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
-) -> None:
+    as_json: AsJson = False,
+) -> None:  # fmt: skip
     """Write a synthetic raw dataset in the real AV2 and nuScenes on-disk formats; the defaults are the
     learning checks' data (16 training logs x 10 frames 2 s apart, 2 validation logs x 20 frames 1 s apart on
     a world of their own). Guide: docs/guide/prepare.md.
@@ -176,30 +170,34 @@ def missing_ray():
         raise typer.Exit(1) from error
 
 
+def split_files(items: list[str]) -> dict[str, Path]:
+    """prepare --split-file's SPLIT=FILE items by split."""
+    files = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise ValueError(f"--split-file expects SPLIT=FILE, got {item!r}")
+        files[name] = Path(path)
+    return files
+
+
 @app.command(short_help="Raw AV2 / nuScenes maps -> Parquet training targets")
 def prepare(
     dataset: Literal["av2", "nuscenes"] = typer.Option(..., help="The raw dataset's format"),
     root: Path = typer.Option(..., help="AV2: the folder holding train/, val/, ... ; nuScenes: the dataroot"),
     out: Path = typer.Option(..., help="Output folder of the prepared Parquet dataset"),
     version: str = typer.Option(
-        "v1.0-trainval", help="nuScenes table version (v1.0-mini, v1.0-trainval, ...)"
-    ),
+        "v1.0-trainval", help="nuScenes table version (v1.0-mini, v1.0-trainval, ...)"),
     split: str = typer.Option(None, show_default="all", help="Prepare one split (train, val, ...)"),
     range_: str = typer.Option(
-        "30x60", "--range", metavar="WIDTHxLENGTH", help="Perception range in metres (x by y)"
-    ),
+        "30x60", "--range", metavar="WIDTHxLENGTH", help="Perception range in metres (x by y)"),
     workers: int = typer.Option(
-        1, min=1, help="Worker processes, one log at a time each (ray: the local CPUs)"
-    ),
+        1, min=1, help="Worker processes, one log at a time each (ray: the local CPUs)"),
     executor: Literal["local", "ray"] = typer.Option(
-        "local", help="local (this machine) or ray (one Ray task per log)"
-    ),
+        "local", help="local (this machine) or ray (one Ray task per log)"),
     address: str = typer.Option(
-        None,
-        show_default="a local Ray instance",
-        help="--executor ray: the cluster to join, auto or HOST:PORT; HOST:PORT of a cluster with token "
-        "authentication needs RAY_AUTH_MODE=token",
-    ),
+        None, show_default="a local Ray instance", help="--executor ray: the cluster to join, auto or "
+        "HOST:PORT; HOST:PORT of a cluster with token authentication needs RAY_AUTH_MODE=token"),
     frame_stride: int = typer.Option(1, min=1, help="Keep every K-th frame"),
     path_points: int = typer.Option(30, min=2, help="Points per resampled path"),
     piece_points: int = typer.Option(20, min=2, help="Points per resampled piece"),
@@ -207,36 +205,25 @@ def prepare(
     resolution: float = typer.Option(0.15, callback=positive, help="Raster cell size in metres (x>0)"),
     line_width: int = typer.Option(5, min=1, help="Raster line width in pixels"),
     on_error: Literal["fail", "skip"] = typer.Option(
-        "fail", help="fail: stop at the first bad record; skip: log it to errors.jsonl and go on"
-    ),
+        "fail", help="fail: stop at the first bad record; skip: log it to errors.jsonl and go on"),
     overwrite: bool = typer.Option(
-        False,
-        help="Start afresh: once this run has succeeded, all that earlier runs wrote in --out goes "
-        "(shards, manifest, errors, picture; other files stay)",
-    ),
+        False, help="Start afresh: once this run has succeeded, all that earlier runs wrote in --out goes "
+        "(shards, manifest, errors, picture; other files stay)"),
     split_file: list[str] = typer.Option(
-        [],
-        metavar="SPLIT=FILE",
-        show_default="the dataset's splits",
-        help="A file of log ids / scene names, or of frames (frame ids, nuScenes sample tokens, AV2 "
-        "<log>_<timestamp_ns>), one per line, for SPLIT (repeatable), replacing the dataset's splits, e.g. "
-        "StreamMapNet's geographically disjoint ones; logs and frames in no file are left out",
-    ),
+        [], metavar="SPLIT=FILE", show_default="the dataset's splits", help="A file of log ids / scene "
+        "names, or of frames (frame ids, nuScenes sample tokens, AV2 <log>_<timestamp_ns>), one per line, "
+        "for SPLIT (repeatable), replacing the dataset's splits, e.g. StreamMapNet's geographically "
+        "disjoint ones; logs and frames in no file are left out"),
     split_scheme: Literal["original", "geographic"] = typer.Option(
-        "original",
-        help="original: the dataset's splits (or --split-file's); geographic: by place, per city, leaving "
-        "out the val and test frames within --geo-buffer of a training frame",
-    ),
+        "original", help="original: the dataset's splits (or --split-file's); geographic: by place, per "
+        "city, leaving out the val and test frames within --geo-buffer of a training frame"),
     geo_cell: float = typer.Option(100.0, callback=positive, help="geographic: cell size in metres (x>0)"),
     geo_buffer: float = typer.Option(
-        None,
-        min=0,
-        show_default="the --range's diagonal: no val or test window shares ground with a training window",
-        help="geographic: metres kept between val or test frames and training frames",
-    ),
+        None, min=0, show_default="the --range's diagonal: no val or test window shares ground with a "
+        "training window", help="geographic: metres kept between val or test frames and training frames"),
     geo_seed: int = typer.Option(0, min=0, help="geographic: the seed of the cells' assignment"),
-    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
-) -> None:
+    as_json: AsJson = False,
+) -> None:  # fmt: skip
     """Crop lane graphs to the ego frame; write graphs, paths, pieces and rasters to Parquet. A root without
     logs, and an --out prepared with other options, are refused before any work. Guide: docs/guide/prepare.md.
 
@@ -252,20 +239,13 @@ def prepare(
     from pipeline.targets import TargetOptions
 
     with reported_errors(), missing_ray():
-        options = TargetOptions(
-            Range.parse(range_), path_points, piece_points, max_paths, resolution, line_width
-        )
-        split_files = {}
-        for item in split_file:
-            name, sep, path = item.partition("=")
-            if not sep or not name or not path:
-                raise ValueError(f"--split-file expects SPLIT=FILE, got {item!r}")
-            split_files[name] = Path(path)
+        options = TargetOptions(Range.parse(range_), path_points, piece_points, max_paths, resolution,
+                                line_width)  # fmt: skip
         summary = run_prepare(
             dataset, root, out, options, version=version, split=split, workers=workers,
-            frame_stride=frame_stride, on_error=on_error, overwrite=overwrite, split_files=split_files,
-            executor=executor, address=address, split_scheme=split_scheme, geo_cell=geo_cell,
-            geo_buffer=geo_buffer, geo_seed=geo_seed,
+            frame_stride=frame_stride, on_error=on_error, overwrite=overwrite,
+            split_files=split_files(split_file), executor=executor, address=address,
+            split_scheme=split_scheme, geo_cell=geo_cell, geo_buffer=geo_buffer, geo_seed=geo_seed,
         )  # fmt: skip
     wrote = [out, out / "splits.png"] + ([out / "errors.jsonl"] if summary["frames_skipped"] else [])
     tables = [(f"prepared {dataset} from {root}", prepare_table(summary))]
@@ -283,89 +263,55 @@ def prepare(
 def train(
     ctx: typer.Context,
     data: Path = typer.Option(
-        None, show_default="the run's, on --resume", help="Prepared dataset (cli prepare --out)"
-    ),
+        None, show_default="the run's, on --resume", help="Prepared dataset (cli prepare --out)"),
     out: Path = typer.Option(..., help="Run folder: config.json, run.json, checkpoint.pt, log.jsonl"),
     model: Model = typer.Option("lanegap", help="The baseline to train"),
     preset: Preset = typer.Option(
-        "paper", help="paper (the paper's settings), tiny (CPU, seconds per epoch) or gpu (one CUDA GPU)"
-    ),
+        "paper", help="paper (the paper's settings), tiny (CPU, seconds per epoch) or gpu (one CUDA GPU)"),
     modality: Modality = typer.Option(None, show_default=PRESET_DEFAULTS["modality"], help="Sensors"),
     epochs: int = typer.Option(None, min=1, show_default=PRESET_DEFAULTS["epochs"], help="Epochs"),
     batch_size: int = typer.Option(
-        None,
-        min=1,
-        show_default=PRESET_DEFAULTS["batch_size"],
-        help="Batch size in total over all processes and accumulated micro-batches",
-    ),
+        None, min=1, show_default=PRESET_DEFAULTS["batch_size"], help="Batch size in total over all "
+        "processes and accumulated micro-batches"),
     path_points: PATH_POINTS = typer.Option(
-        None, show_default=PRESET_DEFAULTS["path_points"], help="Points per path N (query models)"
-    ),
+        None, show_default=PRESET_DEFAULTS["path_points"], help="Points per path N (query models)"),
     bezier_points: int = typer.Option(
-        None,
-        callback=bezier_points_check,
-        show_default="0",
-        help="Bezier head with K control points (paper: 5); 0: polyline (0 or x>=2)",
-    ),
+        None, callback=bezier_points_check, show_default="0", help="Bezier head with K control points "
+        "(paper: 5); 0: polyline (0 or x>=2)"),
     aux_seg: bool = typer.Option(
-        None, "--aux-seg/--no-aux-seg", show_default="aux-seg", help="Auxiliary BEV segmentation loss"
-    ),
+        None, "--aux-seg/--no-aux-seg", show_default="aux-seg", help="Auxiliary BEV segmentation loss"),
     pretrained: Path = typer.Option(
-        None, show_default="none", help="Local torchvision ResNet state_dict file for the backbone"
-    ),
+        None, show_default="none", help="Local torchvision ResNet state_dict file for the backbone"),
     from_scratch: bool = typer.Option(
-        False,
-        help="Train a backbone that the preset expects pretrained (paper) from random weights, every "
-        "stage trained with batch statistics",
-    ),
+        False, help="Train a backbone that the preset expects pretrained (paper) from random weights, "
+        "every stage trained with batch statistics"),
     accumulate: int = typer.Option(
-        None,
-        min=1,
-        show_default="paper: batch / 4 per process, tiny and gpu 1",
-        help="Micro-batches accumulated per optimiser step (the batch size stays the effective batch)",
-    ),
+        None, min=1, show_default="paper: batch / 4 per process, tiny and gpu 1",
+        help="Micro-batches accumulated per optimiser step (the batch size stays the effective batch)"),
     set_: list[str] = typer.Option(
-        [],
-        "--set",
-        metavar="section.field=value",
-        show_default="none",
-        help="Any config field, e.g. train.lr=3e-4 or encoder.kernel_size=3,5 (repeatable)",
-    ),
+        [], "--set", metavar="section.field=value", show_default="none",
+        help="Any config field, e.g. train.lr=3e-4 or encoder.kernel_size=3,5 (repeatable)"),
     eval_every: int = typer.Option(
-        None,
-        min=0,
-        show_default=PRESET_DEFAULTS["eval_every"],
-        help="Validate every N epochs and after the last one (0: after the last one only): RUN/val.jsonl, "
-        "RUN/best.pt",
-    ),
+        None, min=0, show_default=PRESET_DEFAULTS["eval_every"], help="Validate every N epochs and after "
+        "the last one (0: after the last one only): RUN/val.jsonl, RUN/best.pt"),
     eval_frames: int = typer.Option(
-        None, min=0, show_default="0: the whole split", help="Validate on K frames, drawn once by the seed"
-    ),
+        None, min=0, show_default="0: the whole split", help="Validate on K frames, drawn once by the seed"),
     best_metric: BestMetric = typer.Option(
-        None, show_default="directed_junction_topo_f1", help="The validation score that chooses RUN/best.pt"
-    ),
+        None, show_default="directed_junction_topo_f1", help="The validation score that chooses RUN/best.pt"),
     checkpoint_every: int = typer.Option(
-        None,
-        min=0,
-        show_default="0: at epoch ends only",
-        help="Also save the full state every N steps inside an epoch (--resume goes on from there exactly)",
-    ),
+        None, min=0, show_default="0: at epoch ends only", help="Also save the full state every N steps "
+        "inside an epoch (--resume goes on from there exactly)"),
     max_bad_steps: int = typer.Option(
-        None,
-        min=0,
-        show_default="10",
-        help="Stop after N steps in a row whose loss or gradient norm is not finite (each is skipped; under "
-        "fp16, overflows count once the loss scale is down to 1; 0: never stop)",
-    ),
+        None, min=0, show_default="10", help="Stop after N steps in a row whose loss or gradient norm is "
+        "not finite (each is skipped; under fp16, overflows count once the loss scale is down to 1; 0: "
+        "never stop)"),
     resume: bool = typer.Option(False, help="Continue the run in --out from its last checkpoint"),
     overwrite: bool = typer.Option(
-        False, help="Start afresh in an --out that holds a run (else refused), removing its files first"
-    ),
+        False, help="Start afresh in an --out that holds a run (else refused), removing its files first"),
     stop_after: int = typer.Option(
-        0, min=0, help="End this run after that many epochs (0: all); --resume goes on"
-    ),
-    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
-) -> None:
+        0, min=0, help="End this run after that many epochs (0: all); --resume goes on"),
+    as_json: AsJson = False,
+) -> None:  # fmt: skip
     """Train a baseline on a prepared dataset; DDP when started by torchrun (--batch-size is over all
     processes, and with --json every process prints its line). Validates during training (RUN/val.jsonl,
     RUN/best.pt) and writes TensorBoard events to RUN/tb (tensorboard --logdir RUN). A step whose loss or
@@ -380,63 +326,42 @@ def train(
       cli train --model lanegap --data prepared/av2 --out runs/lanegap --preset tiny --checkpoint-every 100
       torchrun --nproc_per_node 8 -m cli train --model maptr --data prep --out runs/maptr --pretrained r50.pth
     """
-    from baselines.models import resolve_config, resume_config
-    from baselines.run_folder import TRAINING_FILES, RunFolder
-    from baselines.train import train as run_train
+    from baselines.launch import TrainOptions, launch
+    from baselines.run_folder import TRAINING_FILES
 
-    long_run = {"eval_every": eval_every, "eval_frames": eval_frames, "best_metric": best_metric,
-                "checkpoint_every": checkpoint_every, "max_bad_steps": max_bad_steps}  # fmt: skip
-    long_run = [f"train.{name}={value}" for name, value in long_run.items() if value is not None]
-    told: set[str] = set()  # on resume, the fields changed on this command line (logged in run.json)
+    # On --resume, the options given on this command line (typer's own click names them) change the run's
+    # config as told (logged in run.json) or are refused by name.
+    given = {name: value for name, value in ctx.params.items()
+             if ctx.get_parameter_source(name).name == "COMMANDLINE"}  # fmt: skip
+    options = TrainOptions(**{name: value for name, value in ctx.params.items() if name != "as_json"})
     with reported_errors():
-        RunFolder.check_free(out, resume, overwrite)
-        if resume:  # the run's own config, which the options given change as told or refuse by name
-            given = {name: value for name, value in ctx.params.items()  # typer's own click: by the name
-                     if ctx.get_parameter_source(name).name == "COMMANDLINE"}  # fmt: skip
-            config, told = resume_config(out, given, long_run + set_)
-            data = data or Path(json.loads((out / "run.json").read_text())["data"])
-        else:
-            weights = str(pretrained) if pretrained else None
-            if pretrained is not None and not pretrained.is_file():
-                raise ValueError(f"--pretrained {pretrained}: no such file")
-            config = resolve_config(preset, modality, epochs, batch_size, path_points, bezier_points,
-                                    aux_seg, weights, long_run + set_, model, accumulate,
-                                    from_scratch)  # fmt: skip
-        if data is None:
-            raise ValueError("--data is required")
-        summary = run_train(config, data, out, resume=resume, stop_after=stop_after, overwrite=overwrite,
-                            told=told)  # fmt: skip
+        run = launch(options, given)
     if not as_json and os.environ.get("RANK", "0") != "0":
         return  # under torchrun, rank 0 reports
     from benchmark.tables import finish, train_table
 
-    heading = f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {data}"
+    config = run.config
+    heading = f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {run.data}"
     wrote = [out / name for name in TRAINING_FILES if (out / name).exists()]
-    finish(summary, [(heading, train_table(summary))], wrote, as_json)
+    finish(run.summary, [(heading, train_table(run.summary))], wrote, as_json)
 
 
 @app.command("eval", short_help="Predict a split with a trained run and score it")
 def eval_(
     run: Path = typer.Option(..., help="Run folder written by cli train"),
     data: Path = typer.Option(
-        None, show_default="the one the run trained on", help="Prepared dataset folder"
-    ),
+        None, show_default="the one the run trained on", help="Prepared dataset folder"),
     split: str = typer.Option(None, show_default="the config's val split", help="Split to predict"),
     device: Literal["cpu", "cuda"] = typer.Option(
-        None, show_default="cuda when available", help="Device to predict on"
-    ),
+        None, show_default="cuda when available", help="Device to predict on"),
     floor: bool = typer.Option(
-        True, help="Also score the sensor-blind floor (other log's sensors, constant prior) and the margin"
-    ),
-    bootstrap: int = typer.Option(
-        1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
-    ),
+        True, help="Also score the sensor-blind floor (other log's sensors, constant prior) and the margin"),
+    bootstrap: Bootstrap = 1000,
     checkpoint: Literal["last", "best"] = typer.Option(
-        "last", help="The weights: last (checkpoint.pt) or best (best.pt, the best validation in training)"
-    ),
+        "last", help="The weights: last (checkpoint.pt) or best (best.pt, the best validation in training)"),
     metric: str = typer.Option("lanegap", help=METRIC_HELP + "; lanegap always, cli report reads it"),
-    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
-) -> None:
+    as_json: AsJson = False,
+) -> None:  # fmt: skip
     """Predict a split, turn the outputs into lane graphs (the model's post-processing), write
     predictions.parquet, frame_counts.parquet and metrics.json into the run folder; a dataset prepared with
     other target parameters than the run's is refused (stale data). Guide: docs/guide/train.md.
@@ -449,6 +374,7 @@ def eval_(
     import torch
 
     from baselines.evaluate import evaluate
+    from baselines.run_folder import EVALUATION_FILES
     from benchmark.metric.table import console_tables, parse_metrics
     from benchmark.tables import eval_table, finish
 
@@ -465,8 +391,6 @@ def eval_(
     table, notes = eval_table(result)
     others, other_notes = console_tables(metrics, result)
     heading = f"{run} on {result['split']} of {result['data']}: {result['frames']} frames"
-    from baselines.run_folder import EVALUATION_FILES
-
     wrote = [run / name for name in EVALUATION_FILES if (run / name).is_file()]
     finish(result, [(heading, table), *others], wrote, as_json, notes + other_notes)
 
@@ -474,64 +398,42 @@ def eval_(
 @app.command(short_help="Score predicted lane graphs: TOPO, Junction TOPO, mIoU")
 def score(
     pred: Path = typer.Option(
-        ...,
-        help="Predictions: a graph-table Parquet file or a folder of shards (e.g. RUN/predictions.parquet), "
-        "or the results JSON of MapTRv2 / LaneGAP or CGNet",
-    ),
+        ..., help="Predictions: a graph-table Parquet file or a folder of shards (e.g. "
+        "RUN/predictions.parquet), or the results JSON of MapTRv2 / LaneGAP or CGNet"),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset or a graph-table file"),
     format_: Literal["auto", "graph", "maptrv2", "cgnet"] = typer.Option(
-        "auto",
-        "--format",
-        help="auto: told by the file's content; graph: our graph table; maptrv2: MapTRv2 / LaneGAP's "
-        "nuscmap_results.json or av2map_results.json (paths, Path2Graph); cgnet: CGNet's "
-        "nuscmap_results.json (snapped pieces, equal points merged) (docs/guide/score.md)",
-    ),
+        "auto", "--format", help="auto: told by the file's content; graph: our graph table; maptrv2: "
+        "MapTRv2 / LaneGAP's nuscmap_results.json or av2map_results.json (paths, Path2Graph); cgnet: "
+        "CGNet's nuscmap_results.json (snapped pieces, equal points merged) (docs/guide/score.md)"),
     class_name: str = typer.Option(
-        None, show_default="centerline", help="maptrv2 / cgnet: the class of vectors scored, others ignored"
-    ),
+        None, show_default="centerline", help="maptrv2 / cgnet: the class of vectors scored, others ignored"),
     min_score: float = typer.Option(
-        None,
-        min=0.0,
-        show_default="maptrv2 0.4, cgnet 0.3: each codebase's own",
-        help="maptrv2 / cgnet: keep vectors whose confidence_level is above this",
-    ),
+        None, min=0.0, show_default="maptrv2 0.4, cgnet 0.3: each codebase's own",
+        help="maptrv2 / cgnet: keep vectors whose confidence_level is above this"),
     sweep: bool = typer.Option(
-        False, help="maptrv2 / cgnet: also score at kept scores 0.1 to 0.8 (one scoring each, no intervals)"
-    ),
+        False, help="maptrv2 / cgnet: also score at kept scores 0.1 to 0.8 (one scoring each, no intervals)"),
     split: str = typer.Option(
-        None,
-        show_default="the split(s) of the predicted frames",
-        help="Score the ground truth's frames of this split (a prepared dataset's); graph: a frame without a "
-        "prediction row is an empty prediction; maptrv2 / cgnet: the frames in the file; a predicted frame "
-        "of another split is refused",
-    ),
+        None, show_default="the split(s) of the predicted frames", help="Score the ground truth's frames "
+        "of this split (a prepared dataset's); graph: a frame without a prediction row is an empty "
+        "prediction; maptrv2 / cgnet: the frames in the file; a predicted frame of another split is refused"),
     out: Path = typer.Option(
-        None,
-        show_default="not written",
-        help="A .json file: the result (scores, thresholds, metric_version); otherwise a run folder "
-        "(predictions.parquet, frame_counts.parquet, metrics.json) that `cli report --runs` shows as "
-        "external",
-    ),
-    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+        None, show_default="not written", help="A .json file: the result (scores, thresholds, "
+        "metric_version); otherwise a run folder (predictions.parquet, frame_counts.parquet, metrics.json) "
+        "that `cli report --runs` shows as external"),
+    as_json: AsJson = False,
     step: float = typer.Option(0.15, callback=positive, help="Densification step in metres (x>0)"),
     match_radius: float = typer.Option(
-        0.45, callback=positive, help="Vertices closer than this may be paired, metres (x>0)"
-    ),
+        0.45, callback=positive, help="Vertices closer than this may be paired, metres (x>0)"),
     reach_radius: float = typer.Option(
-        7.5, callback=positive, help="Reach: path distance below this, metres (x>0)"
-    ),
+        7.5, callback=positive, help="Reach: path distance below this, metres (x>0)"),
     matching: Literal["greedy", "optimal"] = typer.Option(
-        "greedy", help="greedy (by distance) or optimal (maximum cardinality)"
-    ),
+        "greedy", help="greedy (by distance) or optimal (maximum cardinality)"),
     range_: str = typer.Option(
-        None, "--range", metavar="WIDTHxLENGTH", show_default="the dataset's", help="mIoU grid in metres"
-    ),
-    workers: int = typer.Option(1, min=0, help="Worker processes (0: one per core)"),
-    bootstrap: int = typer.Option(
-        1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
-    ),
+        None, "--range", metavar="WIDTHxLENGTH", show_default="the dataset's", help="mIoU grid in metres"),
+    workers: WorkersPerCore = 1,
+    bootstrap: Bootstrap = 1000,
     metric: str = typer.Option("lanegap", help=METRIC_HELP),
-) -> None:
+) -> None:  # fmt: skip
     """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md); the
     JSON records the thresholds and metric_version. Predictions of `cli eval` made by a model trained on other
     target parameters than the ground truth's are refused (stale data). Result files of MapTRv2 / LaneGAP and
@@ -555,21 +457,10 @@ def score(
             pred, gt, out, workers=workers, bootstrap=bootstrap, split=split, fmt=format_,
             class_name=class_name, min_score=min_score, sweep=sweep, metrics=metrics, **params,
         )  # fmt: skip
-    where = f", split {', '.join(result['splits'])}" if result["splits"] else ", every frame"
-    source = result.get("external") or {}
-    if source.get("vectors_read") is not None:  # a result file of another codebase
-        kept = f"{source['class_name']} above {source['min_score']:g}"
-        heading = (f"{pred} ({source['format']}, {kept}) against {gt}{where}: {result['frames']} frames "
-                   "scored (those in the file), "
-                   f"{source['frames_not_in_file']} of the split not in the file; {source['vectors_kept']} "
-                   f"vectors kept, {source['points_clipped']} points outside the range clipped")  # fmt: skip
-    else:
-        heading = (f"{pred} against {gt}{where}: {result['frames']} frames scored, "
-                   f"{result['frames_predicted']} predicted, {result['frames_missing']} missing")  # fmt: skip
     tables, notes = [], []
     if all(always in metrics for always in ALWAYS):  # LaneGAP's metric: the main table
         table, notes = score_table(result)
-        tables.append((heading, table))
+        tables.append((score_heading(pred, gt, result), table))
     others, other_notes = console_tables(metrics, result)
     tables, notes = tables + others, notes + other_notes
     if result.get("sweep"):
@@ -578,24 +469,33 @@ def score(
     finish(result, tables, [path for path in wrote if path], as_json, notes)
 
 
+def score_heading(pred: Path, gt: Path, result: dict) -> str:
+    """cli score's heading: what was scored against what, and how many frames."""
+    where = f", split {', '.join(result['splits'])}" if result["splits"] else ", every frame"
+    source = result.get("external") or {}
+    if source.get("vectors_read") is None:  # our graph table
+        return (f"{pred} against {gt}{where}: {result['frames']} frames scored, "
+                f"{result['frames_predicted']} predicted, {result['frames_missing']} missing")  # fmt: skip
+    kept = f"{source['class_name']} above {source['min_score']:g}"  # a result file of another codebase
+    return (f"{pred} ({source['format']}, {kept}) against {gt}{where}: {result['frames']} frames scored "
+            f"(those in the file), {source['frames_not_in_file']} of the split not in the file; "
+            f"{source['vectors_kept']} vectors kept, {source['points_clipped']} points outside the range "
+            "clipped")  # fmt: skip
+
+
 @app.command(short_help="The ground truth through a representation and back")
 def roundtrip(
     data: Path = typer.Option(..., help="Prepared dataset (cli prepare --out)"),
     via: Literal["path", "piece", "pixel"] = typer.Option(
-        ..., help="path (Path2Graph), piece (Piece2Graph) or pixel (Pixel2Graph)"
-    ),
-    out: Path = typer.Option(
-        None,
-        show_default="not written",
-        help="Write the JSON (scores, thresholds, metric_version) to this file",
-    ),
-    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+        ..., help="path (Path2Graph), piece (Piece2Graph) or pixel (Pixel2Graph)"),
+    out: Path = typer.Option(None, show_default="not written", help="Write the JSON (scores, thresholds, "
+                             "metric_version) to this file"),
+    as_json: AsJson = False,
     merge_radius: float = typer.Option(
-        0.0, min=0.0, help="Path2Graph's near merge in metres (0: identical points only)"
-    ),
+        0.0, min=0.0, help="Path2Graph's near merge in metres (0: identical points only)"),
     frame_stride: int = typer.Option(1, min=1, help="Every K-th frame"),
-    workers: int = typer.Option(1, min=0, help="Worker processes (0: one per core)"),
-) -> None:
+    workers: WorkersPerCore = 1,
+) -> None:  # fmt: skip
     """The ground truth through a representation and back, scored against itself (the paper's Tab. 10).
     Guide: docs/guide/score.md.
 
@@ -616,32 +516,19 @@ def roundtrip(
 
 @app.command(short_help="Tables and pictures comparing finished runs")
 def report(
-    runs: list[Path] = typer.Option(
-        ...,
-        "--runs",
-        metavar="RUN",
-        help="A run folder, or a folder of run folders (repeatable: --runs A --runs B)",
-    ),
-    roundtrip: list[Path] = typer.Option(
-        [],
-        "--roundtrip",
-        metavar="JSON",
-        show_default="none",
-        help="A `cli roundtrip --out` file (repeatable)",
-    ),
+    runs: list[Path] = typer.Option(..., "--runs", metavar="RUN", help="A run folder, or a folder of run "
+                                    "folders (repeatable: --runs A --runs B)"),
+    roundtrip: list[Path] = typer.Option([], "--roundtrip", metavar="JSON", show_default="none",
+                                         help="A `cli roundtrip --out` file (repeatable)"),
     out: Path = typer.Option(..., help="Folder for report.md and its PNGs"),
     workers: int = typer.Option(
-        1, min=0, help="Worker processes of the scores by junction count (0: one per core)"
-    ),
+        1, min=0, help="Worker processes of the scores by junction count (0: one per core)"),
     reference: Literal["paper"] = typer.Option(
-        None, show_default="none", help="paper: place the paper's published tables beside the measured ones"
-    ),
-    bootstrap: int = typer.Option(
-        1000, min=0, help="Draws of the bootstrap over frames giving each F1 a 95 % interval (0: none)"
-    ),
+        None, show_default="none", help="paper: place the paper's published tables beside the measured ones"),
+    bootstrap: Bootstrap = 1000,
     metric: str = typer.Option("lanegap", help=METRIC_HELP + "; lanegap always, the others a table each"),
-    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
-) -> None:
+    as_json: AsJson = False,
+) -> None:  # fmt: skip
     """The comparison tables and pictures of finished runs (from `cli eval` and `cli roundtrip`) as
     OUT/report.md; prints the main tables (with --reference, the paper's rows beside them).
     Guide: docs/guide/report.md.
@@ -670,11 +557,10 @@ def viz(
     pred: Path = typer.Option(..., help="Predictions: a graph-table Parquet file (RUN/predictions.parquet)"),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset (or a graph-table file)"),
     frame: str = typer.Option(
-        None, show_default="the predicted frame of the lowest directed TOPO F1", help="Frame id"
-    ),
+        None, show_default="the predicted frame of the lowest directed TOPO F1", help="Frame id"),
     camera: bool = typer.Option(False, help="Add the front camera image with both graphs on the ground"),
     out: Path = typer.Option(..., help="PNG file to write"),
-) -> None:
+) -> None:  # fmt: skip
     """One frame: ground truth and prediction side by side in BEV, matched and unmatched vertices coloured.
     Guide: docs/guide/report.md.
 

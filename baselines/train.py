@@ -31,23 +31,13 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.distributed as dist
+from rich import progress as bars
 from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
+from rich.progress import Progress
 from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler
 
-from baselines.checkpoint import (
-    CheckpointError,
-    rng_state,
-    set_rng_state,
-)
+from baselines.checkpoint import CheckpointError, rng_state, set_rng_state
 from baselines.config import PAPER_EPOCHS, Config
 from baselines.data import Batch, PreparedDataset, collate
 from baselines.device import amp_settings, cuda_settings
@@ -560,13 +550,13 @@ def validate(s: Setup, validation: Validation, run: RunFolder, epoch: int) -> bo
 
 def progress_bar(master: bool) -> Progress:
     columns = [
-        TextColumn("epoch {task.fields[epoch]}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("loss {task.fields[loss]:.3f}  {task.fields[speed]:.1f} samples/s"),
-        TimeElapsedColumn(),
-        TextColumn("left"),
-        TimeRemainingColumn(),  # the bar counts the whole run's steps: the time left for all of it
+        bars.TextColumn("epoch {task.fields[epoch]}"),
+        bars.BarColumn(),
+        bars.MofNCompleteColumn(),
+        bars.TextColumn("loss {task.fields[loss]:.3f}  {task.fields[speed]:.1f} samples/s"),
+        bars.TimeElapsedColumn(),
+        bars.TextColumn("left"),
+        bars.TimeRemainingColumn(),  # the bar counts the whole run's steps: the time left for all of it
     ]
     return Progress(*columns, console=console, disable=not master)
 
@@ -600,6 +590,76 @@ def run_record(s: Setup, data: PreparedData, validation: str) -> dict:
     }
 
 
+def begin(s: Setup, run: RunFolder, data: PreparedData, resume: bool, told: Collection[str],
+          plan: str) -> tuple[int, int, dict | None]:  # fmt: skip
+    """A new run's config.json and run.json, or a resume's checkpoint restored (the config's changes
+    logged); returns the epoch to start at, the steps of it already done and this rank's RNG state."""
+    config = s.config
+    if not resume:
+        run.start(config, run_record(s, data, plan))
+        return 0, 0, None
+    checkpoint = run.resume(data, config, told)
+    check_steps_per_epoch(checkpoint.get("config"), config.train, len(s.dataset), s.world_size)
+    s.trainer.load(checkpoint, s.world_size)
+    run.resumed(checkpoint, config)
+    return checkpoint["epoch"], checkpoint.get("epoch_steps", 0), checkpoint["rng"][s.rank]
+
+
+def announce(s: Setup, plan: str) -> None:
+    """One line on the console: the model, the data, the steps and the batch's make-up."""
+    config = s.config
+    parameters = sum(p.numel() for p in s.trainer.model.parameters())
+    console.print(
+        f"{config.model} {config.encoder.modality}: {parameters / 1e6:.2f} M parameters, "
+        f"{len(s.dataset)} frames, {s.steps_per_epoch} steps per epoch x {config.train.epochs} epochs "
+        f"({s.schedule}), batch {config.train.batch_size} = {s.world_size} process(es) x {s.accumulate} "
+        f"micro-batch(es) x {s.loader.batch_size} frames, on {s.device.type}; validation {plan}"
+    )
+
+
+def run_epochs(s: Setup, run: RunFolder, validation: Validation | None, epochs: range, skip_steps: int,
+               restore: dict | None) -> Tally:  # fmt: skip
+    """Train `epochs`, the first from `skip_steps` on with `restore` (a resume inside it); validate when
+    due and save the checkpoint at every epoch's end."""
+    tally = Tally()
+    due = validation_epochs(s.config) if validation is not None else set()
+    try:
+        with progress_bar(run.master) as bar, progress.holding(bar):
+            task = bar.add_task("train", total=s.total_steps, completed=s.trainer.step, epoch=epochs.start,
+                                loss=0.0, speed=0.0)  # fmt: skip
+            for epoch in epochs:
+                train_one_epoch(s, epoch, run, tally, bar, task, skip_steps, restore)
+                skip_steps, restore = 0, None
+                best = validate(s, validation, run, epoch + 1) if epoch + 1 in due else False
+                states = all_rng_states(s.distributed)  # every rank takes part
+                run.save(s.trainer.state(epoch + 1, 0, s.config, states, run.best_record()), best)
+    finally:
+        run.close()
+    return tally
+
+
+def summarise(s: Setup, run: RunFolder, tally: Tally) -> dict:
+    """The run's summary (run.json's and `train`'s): loss, steps, speed, skipped steps, the best."""
+    batch_size = s.config.train.batch_size
+    stalls = tally.checkpoint_stall
+    summary = {
+        "final_loss": tally.loss,
+        "steps": s.trainer.step,
+        "epochs": s.config.train.epochs,
+        "schedule": s.schedule,
+        "train_seconds": tally.seconds,
+        "steps_per_s": tally.speed(),
+        "samples_per_s": tally.speed() * batch_size,
+        "skipped_steps": s.trainer.skipped,
+        "best": run.best_record(),
+        # the longest a step waited for a checkpoint inside an epoch (its copy to the host)
+        "checkpoint_stall_s": max(stalls) if stalls else None,
+    }
+    if s.device.type == "cuda":  # this process's peak; every rank holds the same model and batch size
+        summary["gpu_memory_gib"] = torch.cuda.max_memory_allocated(s.device) / 2**30
+    return summary
+
+
 def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, stop_after: int = 0,
           overwrite: bool = False, told: Collection[str] = ()) -> dict:  # fmt: skip
     """Train `config` on the prepared dataset `data_dir`; returns a summary (loss, steps/s, seconds).
@@ -620,59 +680,14 @@ def train(config: Config, data_dir: Path, out_dir: Path, resume: bool = False, s
         validation = Validation(config, data, s.built.needs, s.device, s.trainer.autocast_dtype, s.rank,
                                 s.world_size)  # fmt: skip
     run = RunFolder(out_dir, master=s.rank == 0)
-    start_epoch, skip_steps, restore = 0, 0, None
-    if resume:
-        checkpoint = run.resume(data, config, told)
-        check_steps_per_epoch(checkpoint.get("config"), config.train, len(s.dataset), s.world_size)
-        s.trainer.load(checkpoint, s.world_size)
-        run.resumed(checkpoint, config)
-        start_epoch, skip_steps = checkpoint["epoch"], checkpoint.get("epoch_steps", 0)
-        restore = checkpoint["rng"][s.rank]
-    else:
-        run.start(config, run_record(s, data, plan))
+    start_epoch, skip_steps, restore = begin(s, run, data, resume, told, plan)
     if run.master:
-        parameters = sum(p.numel() for p in s.trainer.model.parameters())
-        console.print(
-            f"{config.model} {config.encoder.modality}: {parameters / 1e6:.2f} M parameters, "
-            f"{len(s.dataset)} frames, {s.steps_per_epoch} steps per epoch x {config.train.epochs} epochs "
-            f"({s.schedule}), batch {config.train.batch_size} = {s.world_size} process(es) x {s.accumulate} "
-            f"micro-batch(es) x {s.loader.batch_size} frames, on {s.device.type}; validation {plan}"
-        )
+        announce(s, plan)
     run.open_logs(s.trainer.step)
-    tally = Tally()
     epochs = config.train.epochs
     last_epoch = min(epochs, start_epoch + stop_after) if stop_after else epochs
-    due = validation_epochs(config) if validation is not None else set()
-    try:
-        with progress_bar(run.master) as bar, progress.holding(bar):
-            task = bar.add_task(
-                "train", total=s.total_steps, completed=s.trainer.step, epoch=start_epoch, loss=0.0, speed=0.0
-            )
-            for epoch in range(start_epoch, last_epoch):
-                train_one_epoch(s, epoch, run, tally, bar, task, skip_steps, restore)
-                skip_steps, restore = 0, None
-                best = validate(s, validation, run, epoch + 1) if epoch + 1 in due else False
-                states = all_rng_states(s.distributed)  # every rank takes part
-                run.save(s.trainer.state(epoch + 1, 0, config, states, run.best_record()), best)
-    finally:
-        run.close()
-    batch_size = config.train.batch_size
-    stalls = tally.checkpoint_stall
-    summary = {
-        "final_loss": tally.loss,
-        "steps": s.trainer.step,
-        "epochs": epochs,
-        "schedule": s.schedule,
-        "train_seconds": tally.seconds,
-        "steps_per_s": tally.speed(),
-        "samples_per_s": tally.speed() * batch_size,
-        "skipped_steps": s.trainer.skipped,
-        "best": run.best_record(),
-        # the longest a step waited for a checkpoint inside an epoch (its copy to the host)
-        "checkpoint_stall_s": max(stalls) if stalls else None,
-    }
-    if s.device.type == "cuda":  # this process's peak; every rank holds the same model and batch size
-        summary["gpu_memory_gib"] = torch.cuda.max_memory_allocated(s.device) / 2**30
+    tally = run_epochs(s, run, validation, range(start_epoch, last_epoch), skip_steps, restore)
+    summary = summarise(s, run, tally)
     run.finish(summary)
     if s.distributed:
         dist.barrier()

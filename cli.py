@@ -49,10 +49,13 @@ JSON_HELP = "Print the result as one JSON line instead of the tables (for script
 
 @contextmanager
 def reported_errors():
-    """Bad input (DataError is a ValueError) ends the command with its message and exit code 1."""
+    """Bad input (DataError is a ValueError), or --executor ray without Ray installed (its install hint), ends
+    the command with its message and exit code 1."""
+    from pipeline.executor import RayMissing
+
     try:
         yield
-    except (ValueError, FileNotFoundError, FileExistsError) as error:
+    except (ValueError, FileNotFoundError, FileExistsError, RayMissing) as error:
         message = str(error)
         if "Original Traceback" in message:  # re-raised from a DataLoader worker: its last line says it
             message = message.strip().splitlines()[-1].partition(": ")[2]
@@ -158,18 +161,6 @@ def synth(
     finish(summary, [(heading, summary_table(summary))], wrote, as_json)
 
 
-@contextmanager
-def missing_ray():
-    """--executor ray without Ray installed: its install hint in one line, exit code 1."""
-    from pipeline.executor import RayMissing
-
-    try:
-        yield
-    except RayMissing as error:
-        typer.secho(f"error: {error}", fg="red", err=True)
-        raise typer.Exit(1) from error
-
-
 def split_files(items: list[str]) -> dict[str, Path]:
     """prepare --split-file's SPLIT=FILE items by split."""
     files = {}
@@ -238,7 +229,7 @@ def prepare(
     from pipeline.splits.leakage import leakage_line
     from pipeline.targets import TargetOptions
 
-    with reported_errors(), missing_ray():
+    with reported_errors():
         options = TargetOptions(Range.parse(range_), path_points, piece_points, max_paths, resolution,
                                 line_width)  # fmt: skip
         summary = run_prepare(

@@ -326,15 +326,15 @@ def train(
              if ctx.get_parameter_source(name).name == "COMMANDLINE"}  # fmt: skip
     options = TrainOptions(**{name: value for name, value in ctx.params.items() if name != "as_json"})
     with reported_errors():
-        run = launch(options, given)
+        trained = launch(options, given)
     if not as_json and os.environ.get("RANK", "0") != "0":
         return  # under torchrun, rank 0 reports
     from benchmark.tables import finish, train_table
 
-    config = run.config
-    heading = f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {run.data}"
+    config = trained.config
+    heading = f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {trained.data}"
     wrote = [out / name for name in TRAINING_FILES if (out / name).exists()]
-    finish(run.summary, [(heading, train_table(run.summary))], wrote, as_json)
+    finish(trained.summary, [(heading, train_table(trained.summary))], wrote, as_json)
 
 
 @app.command("eval", short_help="Predict a split with a trained run and score it")

@@ -315,3 +315,29 @@ def test_micro_batches_changed_on_resume_that_change_the_steps_per_epoch_are_ref
         "them; resume with the micro-batches it had or with ones that keep 1"
     )
     assert files(run) == before
+
+
+def test_no_from_scratch_on_resume_is_refused_where_it_changes_the_run_and_accepted_where_it_does_not(
+    tmp_path,
+):
+    """Before, `--resume --no-from-scratch` was neither applied, refused nor logged: resuming a
+    --from-scratch paper run with it asks to freeze and BatchNorm-eval a backbone the checkpoint trained."""
+    from baselines.models import resolve_config, resume_config
+
+    for from_scratch, (run, refused, accepted) in {
+        True: ("scratch", False, True),
+        False: ("pretrained", True, False),
+    }.items():
+        out = tmp_path / run
+        out.mkdir()
+        config = resolve_config("paper", "lidar", from_scratch=from_scratch)
+        (out / "config.json").write_text(json.dumps(config.to_dict()))
+        (out / "run.json").write_text("{}")
+        with pytest.raises(ValueError) as error:
+            resume_config(out, {"from_scratch": refused}, [])
+        frozen = config.encoder.backbone_frozen_stages
+        flag = "--from-scratch" if refused else "--no-from-scratch"
+        assert str(error.value).startswith(f"{flag} on --resume: the run in {out} was trained with "
+                                           f"encoder.backbone_frozen_stages={frozen}, and it sets which")
+        resumed, told = resume_config(out, {"from_scratch": accepted}, [])
+        assert resumed.to_dict() == config.to_dict() and told == set()

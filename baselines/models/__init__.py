@@ -179,8 +179,10 @@ def resume_config(out: Path, options: dict[str, Any], overrides: list[str]) -> t
         if name in ("model", "preset"):
             setattr(config, name, value)
             keep(name, option)
-        elif name == "from_scratch" and value:  # resolve_config's two fields
-            config.encoder.backbone_frozen_stages, config.encoder.backbone_norm_eval = -1, False
+        elif name == "from_scratch":  # resolve_config's two fields; --no-from-scratch: the preset's
+            preset = PRESETS[config.preset]().encoder
+            scratch = (-1, False) if value else (preset.backbone_frozen_stages, preset.backbone_norm_eval)
+            config.encoder.backbone_frozen_stages, config.encoder.backbone_norm_eval = scratch
             keep("encoder.backbone_frozen_stages", option)
             keep("encoder.backbone_norm_eval", option)
         elif name in OPTION_FIELDS:
@@ -188,7 +190,7 @@ def resume_config(out: Path, options: dict[str, Any], overrides: list[str]) -> t
             set_field(config, f"{field_name}={value}", OPTION_FIELDS[name][0])
             keep(field_name, option)
             told.add(field_name)
-        elif name not in RESUME_OWN and name != "from_scratch":
+        elif name not in RESUME_OWN:
             raise ValueError(f"{option} on --resume: a resume does not apply it (leave it out)")
     for item in overrides:
         set_field(config, item, f"--set {item}")

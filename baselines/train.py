@@ -167,6 +167,7 @@ class Trainer:
     step: int = 0  # batches stepped through, applied or skipped: the position in the schedule
     bad_in_a_row: int = 0  # non-finite steps in a row, fp16 overflows at a loss scale of 1 or less among them
     skipped: int = 0  # non-finite steps, in all
+    last_applied: int = 0  # the step of the last applied one: a streak of skipped steps began after it
 
     def train_step(self, batches: list[Batch]) -> Step:
         """One optimiser step on the micro-batches of one batch: their gradients add up, each loss weighted
@@ -211,7 +212,7 @@ class Trainer:
         # range; at a scale of 1 or less they overflow unscaled, and a scaler that keeps backing off would
         # skip every step of the run: such an overflow is a bad step like a NaN loss.
         if applied:
-            self.bad_in_a_row = 0
+            self.bad_in_a_row, self.last_applied = 0, self.step
         elif not overflow or loss_scale <= 1:
             self.bad_in_a_row += 1
         self.skipped += not applied
@@ -229,6 +230,7 @@ class Trainer:
             "step": self.step,
             "skipped": self.skipped,
             "bad_in_a_row": self.bad_in_a_row,
+            "last_applied": self.last_applied,
             "best": best,
             "rng": rng_states,
             "config": config.to_dict(),
@@ -266,6 +268,7 @@ class Trainer:
         self.step = checkpoint["step"]
         self.skipped = checkpoint.get("skipped", 0)
         self.bad_in_a_row = checkpoint.get("bad_in_a_row", 0)
+        self.last_applied = checkpoint.get("last_applied", self.step)  # older: taken as saved before a streak
 
 
 def mean_losses(losses: dict[str, torch.Tensor], distributed: bool) -> dict[str, torch.Tensor]:
@@ -476,7 +479,7 @@ def stop_if_diverged(s: Setup, run: RunFolder, step: Step) -> None:
     last = run.last_checkpoint
     if last is None:
         go_on = f"no checkpoint was written yet: start again (--overwrite) with {change}"
-    elif step.overflow and last[2] is not None:
+    elif step.overflow and last[2] is not None and last[1] > trainer.last_applied:
         # a checkpoint saved during the overflows holds good weights (a skipped step leaves them) but the
         # scale they brought down: under fp16 a resume goes on from that scale and overflows at once
         at_once = ", at which fp16 overflows at once" if last[2] <= 1 else ""

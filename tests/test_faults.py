@@ -356,11 +356,10 @@ class OverflowingFrom(torch.nn.Module):
         return losses
 
 
-def test_fp16_overflows_that_never_end_stop_the_run_in_one_line(tmp_path, monkeypatch):
-    """fp16 on the CPU: the GradScaler itself (scale 4, halved at each overflow), gradients infinite from
-    step 3 on while the loss stays finite. The scaler backs off at scales 4 and 2; at 1 and below the
-    overflows count toward --max-bad-steps 3, so step 7 ends the run (before, it skipped every step to the
-    end and finished)."""
+def stopped_by_fp16_overflows(tmp_path, monkeypatch, first: int, checkpoint_every: int, max_bad_steps: int):
+    """The one line that ends a toy fp16 run on the CPU (12 frames, 6 steps an epoch, 3 epochs): the
+    GradScaler itself (scale 4, halved at each overflow), gradients infinite from step `first` on while
+    the loss stays finite."""
     from test_baselines_train import toy_config
 
     from baselines import train as train_module
@@ -369,7 +368,7 @@ def test_fp16_overflows_that_never_end_stop_the_run_in_one_line(tmp_path, monkey
 
     def overflowing(config):
         built = build(config)
-        built.loss = OverflowingFrom(built.loss, first=3)
+        built.loss = OverflowingFrom(built.loss, first=first)
         return built
 
     scaler = torch.amp.GradScaler
@@ -378,10 +377,17 @@ def test_fp16_overflows_that_never_end_stop_the_run_in_one_line(tmp_path, monkey
     monkeypatch.setattr(torch.amp, "GradScaler", lambda device, enabled: scaler("cpu", init_scale=4.0))
     data = write_toy_dataset(tmp_path, frames=12)
     config = toy_config("lidar", epochs=3)
-    config.train.checkpoint_every, config.train.max_bad_steps = 2, 3
+    config.train.checkpoint_every, config.train.max_bad_steps = checkpoint_every, max_bad_steps
     with pytest.raises(TrainingStopped) as stopped:
         train(config, data, tmp_path / "run")
-    message = str(stopped.value)
+    return str(stopped.value)
+
+
+def test_fp16_overflows_that_never_end_stop_the_run_in_one_line(tmp_path, monkeypatch):
+    """Gradients infinite from step 3 on: the scaler backs off at scales 4 and 2; at 1 and below the
+    overflows count toward --max-bad-steps 3, so step 7 ends the run (before, it skipped every step to the
+    end and finished)."""
+    message = stopped_by_fp16_overflows(tmp_path, monkeypatch, first=3, checkpoint_every=2, max_bad_steps=3)
     assert message.startswith("step 7: 3 steps in a row with a non-finite loss or gradient norm")
     assert "not finite at this step: grad_norm (fp16 gradients overflowing at a loss scale of 0.25" in message
     # step 6's checkpoint was saved amid the overflows: its weights are step 2's, its loss scale the 0.25 they
@@ -395,6 +401,22 @@ def test_fp16_overflows_that_never_end_stop_the_run_in_one_line(tmp_path, monkey
     skipped = [r for r in map(json.loads, logged_lines(tmp_path / "run" / "log.jsonl")) if "skipped" in r]
     assert [(r["step"], r["skipped"]) for r in skipped] == [(n, "fp16 overflow") for n in range(3, 8)]
     assert all(np.isfinite(r["loss"]) and not np.isfinite(r["grad_norm"]) for r in skipped)
+
+
+def test_an_fp16_checkpoint_saved_before_the_overflows_began_is_named_the_last_good_one(
+    tmp_path, monkeypatch
+):
+    """Overflows from step 7 on, after the epoch-end checkpoint of step 6 (saved at the scale of 4 the
+    steps before applied at): scales 4 and 2 are backed off, the overflow at 1 is --max-bad-steps 1's.
+    Before, every fp16 checkpoint was described as saved amid the overflows."""
+    message = stopped_by_fp16_overflows(tmp_path, monkeypatch, first=7, checkpoint_every=0, max_bad_steps=1)
+    checkpoint = tmp_path / "run" / "checkpoint.pt"
+    assert load_checkpoint(checkpoint)["scaler"]["scale"] == 4.0
+    assert message.startswith("step 9: 1 steps in a row with a non-finite loss or gradient norm"), message
+    assert message.endswith(
+        f"none of them applied; the last good checkpoint is {checkpoint} (step 6): --resume from it with "
+        "--set train.amp=false (fp32) or another --set train.lr=..."
+    )
 
 
 # ---------------------------------------------------------------------------------------------- metric

@@ -399,7 +399,7 @@ def score(
     class_name: str = typer.Option(
         None, show_default="centerline", help="maptrv2 / cgnet: the class of vectors scored, others ignored"),
     min_score: float = typer.Option(
-        None, min=0.0, show_default="maptrv2 0.4, cgnet 0.3: each codebase's own",
+        None, min=0.0, max=1.0, show_default="maptrv2 0.4, cgnet 0.3: each codebase's own",
         help="maptrv2 / cgnet: keep vectors whose confidence_level is above this"),
     sweep: bool = typer.Option(
         False, help="maptrv2 / cgnet: also score at kept scores 0.1 to 0.8 (one scoring each, no intervals)"),

@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import pickle
+import re
 import shutil
 import typing
 from pathlib import Path
@@ -56,6 +57,7 @@ def files(tmp_path) -> dict[str, Path]:
     lane = [{"sample_token": "t", "vectors": [vector(TRUNK, 0.9, {"cls_name": "lane", "type": 7})]}]
     out["unknown classes"] = write_results(tmp_path / "lane.json", lane)
     out["no vectors"] = write_results(tmp_path / "empty.json", [{"sample_token": "t", "vectors": []}])
+    out["no samples"] = write_results(tmp_path / "none.json", [])
     (out.setdefault("text", tmp_path / "notes.parquet")).write_text("not a prediction file")
     (out.setdefault("broken JSON", tmp_path / "broken.json")).write_text('{"results": [')
     (out.setdefault("no results", tmp_path / "meta.json")).write_text('{"meta": {}}')
@@ -66,7 +68,7 @@ def files(tmp_path) -> dict[str, Path]:
 DETECTED = {
     "graph table": ["graph"], "folder of shards": ["graph"], "maptrv2": ["maptrv2"],
     "maptrv2 divider": ["maptrv2"], "cgnet": ["cgnet"], "unknown classes": [], "no vectors": [],
-    "text": [], "broken JSON": [], "no results": [], "pickle": [],
+    "no samples": [], "text": [], "broken JSON": [], "no results": [], "pickle": [],
 }  # fmt: skip
 
 
@@ -80,13 +82,22 @@ def test_auto_picks_one_reader_and_refuses_a_file_none_recognises_in_one_line(fi
     for kind, path in files.items():
         if DETECTED[kind]:
             assert formats.choose(Source.of(path)).name == DETECTED[kind][0]
-    for kind in ("unknown classes", "no vectors", "text", "broken JSON", "no results"):
+    for kind in ("unknown classes", "text", "broken JSON", "no results"):
         with pytest.raises(FormatError) as refused:
             formats.choose(Source.of(files[kind]))
         assert str(refused.value) == (
             f"{files[kind]}: no format recognises its content (tried graph, maptrv2, cgnet); pass --format "
             "NAME to hear why that one does not read it"
         )
+    # a result file without vectors is either codebase's: told apart by nothing, named by the user
+    with pytest.raises(FormatError) as refused:
+        formats.choose(Source.of(files["no vectors"]))
+    assert str(refused.value) == (
+        f"{files['no vectors']}: no vectors to tell MapTRv2 from CGNet: pass --format maptrv2 or cgnet"
+    )
+    with pytest.raises(FormatError) as refused:  # what either reader says of it
+        formats.choose(Source.of(files["no samples"]))
+    assert str(refused.value) == f"{files['no samples']}: no sample in its results list"
     with pytest.raises(FormatError, match=r"^\S*results.json: a pickle, refused: reading one can run code"):
         formats.choose(Source.of(files["pickle"]))
     with pytest.raises(FormatError, match=r"^\S*gone.json: no such file or folder$"):
@@ -164,13 +175,64 @@ def test_cli_format_choices_are_the_formats_and_auto():
     assert typing.get_args(hints["format_"]) == (formats.AUTO, *(fmt.name for fmt in formats.FORMATS))
 
 
+# what issue 60 removed: the modules, and tables.py's variant_tables (benchmark/report/variant_tables.py,
+# report.md's tables of the other metrics, stays)
+OLD_MODULES = ("benchmark.predictions", "benchmark.external", "benchmark.metric.variants")
+OLD_NAMES = re.compile(
+    r"\bbenchmark[./](predictions|external|metric[./]variants)\b(?!_)"
+    r"|\bfrom benchmark import [^\n]*\b(predictions|external)\b(?!_)"
+    r"|\bfrom benchmark\.metric import [^\n]*\bvariants\b(?!_)"
+    r"|\b(benchmark[./])?tables\.variant_tables\b|\bfrom benchmark\.tables import [^\n]*\bvariant_tables\b"
+)
+# where the code, its tools, docs and build name modules; CHANGELOG.md is history and may
+NAMING_PLACES = (*(f"{d}/**/*.py" for d in ("benchmark", "baselines", "pipeline", "tools", "tests")),
+                 "docs/**/*.md", ".ci/*", "cli.py", "README.md", "Makefile", "pyproject.toml")  # fmt: skip
+
+
+def old_names_in(root: Path) -> list[str]:
+    """'path: the old name' for each place under `root` that names a removed module or function, imports
+    of several names and parenthesised ones included."""
+    found = []
+    for path in sorted({p for place in NAMING_PLACES for p in root.glob(place) if p.is_file()}):
+        text = path.read_text(errors="replace")
+        # a parenthesised import on one line, for the patterns that read one line
+        imports = re.sub(r"import \(([^()]*)\)", lambda m: "import " + " ".join(m.group(1).split()), text)
+        found += [f"{path.relative_to(root)}: {m.group(0)}" for m in OLD_NAMES.finditer(imports)]
+    return found
+
+
 def test_the_old_modules_are_gone_and_named_nowhere():
-    for old in ("benchmark.predictions", "benchmark.external"):
+    import benchmark.tables
+
+    for old in OLD_MODULES:
         assert importlib.util.find_spec(old) is None, old
-    sources = [REPO / "cli.py", *(p for d in ("benchmark", "baselines", "tools", "tests")
-                                  for p in (REPO / d).rglob("*.py"))]  # fmt: skip
-    olds = ("benchmark.predictions", "benchmark.external", "from benchmark import predictions",
-            "from benchmark import external", "benchmark/predictions.py",
-            "benchmark/external.py")  # fmt: skip
-    naming = [p.name for p in sources if p != Path(__file__) for old in olds if old in p.read_text()]
+    assert not hasattr(benchmark.tables, "variant_tables")
+    naming = [place for place in old_names_in(REPO) if not place.startswith("tests/test_formats.py")]
     assert not naming, naming
+
+
+def test_the_old_names_check_sees_each_way_of_naming_them(tmp_path):
+    named = {
+        "pipeline/a.py": "from benchmark.metric import (\n    table,\n    variants,\n)\n",
+        "tools/b.py": "import benchmark.metric.variants as v\n",
+        "docs/guide/c.md": "see `benchmark/external.py`\n",
+        ".ci/run": "python -c 'from benchmark import frames, predictions'\n",
+        "Makefile": "\tpython -m benchmark.predictions\n",
+        "pyproject.toml": '"benchmark/metric/variants.py" = ["E501"]\n',
+        "cli.py": "from benchmark.tables import finish, variant_tables\n",
+        "baselines/d.py": "rows = benchmark.tables.variant_tables(result)\n",
+    }
+    for name, text in named.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    assert sorted(place.split(":")[0] for place in old_names_in(tmp_path)) == sorted(named)
+    fine = (
+        "from benchmark.report.variant_tables import variant_sections\nfrom benchmark.tables import finish\n"
+        "from benchmark.report.measured_tables import external_notes\nbenchmark/report/variant_tables.py\n"
+        "from benchmark.formats import graph  # external\n"
+    )
+    for name in named:
+        (tmp_path / name).write_text(fine)
+    assert old_names_in(tmp_path) == []
+    (tmp_path / "CHANGELOG.md").write_text("`benchmark/predictions.py` is gone\n")  # history
+    assert old_names_in(tmp_path) == []

@@ -319,3 +319,69 @@ def test_a_nuscenes_dataset_prepared_before_sample_tokens_is_refused(synth_prepa
     assert (
         len(error) == 1 and "column sample_token: missing" in error[0] and "re-run `cli prepare`" in error[0]
     )
+
+
+def test_a_result_file_without_vectors_scores_alike_in_both_and_auto_asks_which(tmp_path):
+    """An empty prediction is a submission (every frame scores 0 recall): MapTRv2's and CGNet's readers score
+    it alike, but the result records whose file it is (its format, kept score and modeling), which nothing
+    in the file tells: auto asks in one line rather than guess."""
+    data, token = write_prepared(tmp_path / "data", "nuscenes", LaneGraph(
+        np.array([6, 6], np.float32), np.array([-25, 10], np.float32), np.array([0], np.int32),
+        np.array([1], np.int32)))  # fmt: skip
+    path = write_results(tmp_path / "empty.json", [{"sample_token": token, "vectors": []}])
+    maptrv2, cgnet = (score(path, data, fmt=fmt, bootstrap=0) for fmt in ("maptrv2", "cgnet"))
+    assert maptrv2["directed"]["topo"] == {"precision": 0.0, "recall": 0.0, "f1": 0.0}
+    assert {k: v for k, v in maptrv2.items() if k != "external"} == {
+        k: v for k, v in cgnet.items() if k != "external"
+    }
+    assert (maptrv2["external"]["format"], maptrv2["external"]["min_score"]) == ("maptrv2", 0.4)
+    assert (cgnet["external"]["format"], cgnet["external"]["min_score"]) == ("cgnet", 0.3)
+    run = CliRunner().invoke(app, ["score", "--pred", str(path), "--gt", str(data), "--bootstrap", "0"])
+    error = [line for line in run.output.splitlines() if line.strip()]
+    assert run.exit_code == 1 and error == [
+        f"error: {path}: no vectors to tell MapTRv2 from CGNet: pass --format maptrv2 or cgnet"
+    ]
+    nothing = write_results(tmp_path / "nothing.json", [])  # no sample at all: what each reader says
+    for fmt in ("maptrv2", "cgnet", "auto"):
+        with pytest.raises(ValueError, match=r"^\S*nothing.json: no sample in its results list$"):
+            score(nothing, data, fmt=fmt, bootstrap=0)
+
+
+def test_graphs_refusal_of_a_json_points_at_the_formats_that_read_it(tmp_path, monkeypatch):
+    """`--format graph` on a result JSON names maptrv2 and cgnet, never auto (which cannot tell an empty
+    one's codebase); the guide quotes the lines as they are."""
+    data, token = write_prepared(tmp_path / "data", "nuscenes", LaneGraph.empty())
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "maptrv2" / "pts_bbox").mkdir(parents=True)
+    path = write_results(
+        Path("maptrv2/pts_bbox/nuscmap_results.json"), [{"sample_token": token, "vectors": []}]
+    )
+    with pytest.raises(ValueError) as refused:
+        score(path, data, fmt="graph")
+    line = f"{path}: a JSON file, not a graph table; pass --format maptrv2 or cgnet"
+    assert str(refused.value) == line
+    table = Path("my_predictions.parquet")
+    pq.write_table(pa.Table.from_pylist([], SCHEMAS["graphs"]), table)
+    with pytest.raises(ValueError) as refused:
+        score(table, data, min_score=0.5)
+    options_line = (
+        "--min-score: only for a result file of another codebase (--format maptrv2 or cgnet); "
+        "my_predictions.parquet is read as a graph table"
+    )
+    assert str(refused.value) == options_line
+    guide = (Path(__file__).resolve().parents[1] / "docs" / "guide" / "score.md").read_text()
+    assert f"`error: {line}`" in guide and f"`error: {options_line}`" in guide
+    assert score(path, data, fmt="maptrv2", bootstrap=0)["frames"] == 1  # the advice reads it
+
+
+@pytest.mark.parametrize("given", ["inf", "1.5", "-0.1", "nan"])
+def test_a_kept_score_outside_0_to_1_is_refused_in_one_line(tmp_path, given):
+    """Confidences are probabilities: a kept score above 1 would drop every vector unsaid."""
+    data, token = write_prepared(tmp_path / "data", "nuscenes", LaneGraph.empty())
+    path = write_results(tmp_path / "r.json", [{"sample_token": token, "vectors": [
+        vector(TRUNK, 0.9, MAPTRV2_CENTERLINE)]}])  # fmt: skip
+    run = CliRunner().invoke(app, ["score", "--pred", str(path), "--gt", str(data), "--min-score", given])
+    assert run.exit_code != 0 and "--min-score" in run.output, run.output
+    assert "frames scored" not in run.output
+    with pytest.raises(ValueError, match=rf"^--min-score {given}: not a confidence from 0 to 1$"):
+        score(path, data, min_score=float(given))

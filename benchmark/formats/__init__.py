@@ -9,7 +9,7 @@ docs/ARCHITECTURE.md says more.
 
 from __future__ import annotations
 
-from benchmark.formats import cgnet_json, graph, maptrv2_json
+from benchmark.formats import cgnet_json, graph, maptrv2_json, result_json
 from benchmark.formats.base import FormatError, Options, PredictionFormat, Source
 
 # in the order `--format auto` asks them; each one's detection excludes the others'
@@ -19,7 +19,8 @@ AUTO = "auto"
 
 def choose(source: Source, name: str = AUTO) -> PredictionFormat:
     """The format of `name`, or for `auto` the first of FORMATS that recognises the file's content; one line
-    naming the file and the formats tried where none does."""
+    naming the file and the formats tried where none does, or for a result file without vectors (whose
+    codebase nothing in it tells) the line asking which."""
     names = [fmt.name for fmt in FORMATS]
     if name != AUTO:
         if name not in names:
@@ -31,6 +32,8 @@ def choose(source: Source, name: str = AUTO) -> PredictionFormat:
         if fmt.detect(source):
             return fmt
     source.refuse_pickle()
+    if (refusal := result_json.undecided(source)) is not None:
+        raise FormatError(refusal)
     tried = ", ".join(fmt.name for fmt in FORMATS)
     raise FormatError(
         f"{source.path}: no format recognises its content (tried {tried}); pass --format NAME to hear why "

@@ -43,12 +43,13 @@ def check(source: Source, options: Options) -> str | None:
     if given or options.sweep:
         return (
             f"{', '.join(given + ['--sweep'] * options.sweep)}: only for a result file of another codebase "
-            f"(--format maptrv2, cgnet or auto); {source.path} is read as a graph table"
+            f"(--format maptrv2 or cgnet); {source.path} is read as a graph table"
         )
     if (refusal := source.pickle_refusal()) is not None:
         return refusal
     if source.head(64).lstrip()[:1] in (b"{", b"["):  # by its content, whatever its name
-        return f"{source.path}: a JSON file, not a graph table; pass --format maptrv2 or cgnet (or auto)"
+        # never "or auto": auto cannot tell whose a result file without vectors is
+        return f"{source.path}: a JSON file, not a graph table; pass --format maptrv2 or cgnet"
     return None
 
 

@@ -87,6 +87,23 @@ def vector_kinds(source: Source) -> set[tuple[object, object]] | None:
     return {(v.get("cls_name"), v.get("type")) for r in records for v in r["vectors"] if isinstance(v, dict)}
 
 
+def undecided(source: Source) -> str | None:
+    """The line refusing, under auto, a result JSON that no detection recognises because it holds no vector:
+    with no sample, what either reader says; with only empty samples, a file either codebase may have
+    written, which both score alike but whose result records one's format and kept score (None: neither)."""
+    try:
+        data = source.json()
+    except (ValueError, OSError):
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("results"), list):
+        return None
+    if not data["results"]:
+        return f"{source.path}: no sample in its results list"
+    if all(isinstance(record, dict) and record.get("vectors") == [] for record in data["results"]):
+        return f"{source.path}: no vectors to tell MapTRv2 from CGNet: pass --format maptrv2 or cgnet"
+    return None
+
+
 def load_json(source: Source) -> dict:
     """The file's JSON for its reader, the last to ask for it."""
     try:
@@ -263,10 +280,13 @@ def build_graphs(frames: list[list[np.ndarray]], build: Build,
 
 
 def check(codebase: Codebase, options: Options) -> str | None:
-    """--class-name names one of the codebase's classes (--min-score and --sweep apply to every one)."""
+    """--class-name names one of the codebase's classes (--min-score and --sweep apply to every one);
+    --min-score is a confidence (cli.py's range check lets a NaN through; a caller of score() has none)."""
     class_name = options.class_name or "centerline"
     if class_name not in codebase.classes:
         return f"--class-name {class_name}: not a {codebase.name} class ({', '.join(codebase.classes)})"
+    if options.min_score is not None and not 0.0 <= options.min_score <= 1.0:
+        return f"--min-score {options.min_score:g}: not a confidence from 0 to 1"
     return None
 
 

@@ -320,13 +320,12 @@ def train(
     from baselines.launch import TrainOptions, launch
     from baselines.run_folder import TRAINING_FILES
 
-    # On --resume, the options given on this command line (typer's own click names them) change the run's
-    # config as told (logged in run.json) or are refused by name.
+    # The options given on this command line (typer's own click names them): the others take their
+    # defaults, and on --resume the given ones change the run's config as told (logged) or are refused.
     given = {name: value for name, value in ctx.params.items()
-             if ctx.get_parameter_source(name).name == "COMMANDLINE"}  # fmt: skip
-    options = TrainOptions(**{name: value for name, value in ctx.params.items() if name != "as_json"})
+             if name != "as_json" and ctx.get_parameter_source(name).name == "COMMANDLINE"}  # fmt: skip
     with reported_errors():
-        trained = launch(options, given)
+        trained = launch(TrainOptions(**given))
     if not as_json and os.environ.get("RANK", "0") != "0":
         return  # under torchrun, rank 0 reports
     from benchmark.tables import finish, train_table

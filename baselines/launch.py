@@ -8,7 +8,7 @@ config.json with the options given on its command line applied as told changes, 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -22,13 +22,14 @@ LONG_RUN = ("eval_every", "eval_frames", "best_metric", "checkpoint_every", "max
 
 @dataclass
 class TrainOptions:
-    """The options of `cli train`, by their parameter's name; None: the preset's value (on resume, the
-    run's)."""
+    """The options of `cli train` that were given, by their parameter's name; None: not given, so the
+    default's value (lanegap, paper, the preset's; on resume, the run's). A resume applies every option
+    given (`given`) as a told change, or refuses it by name."""
 
     out: Path
     data: Path | None = None
-    model: str = "lanegap"
-    preset: str = "paper"
+    model: str | None = None
+    preset: str | None = None
     modality: str | None = None
     epochs: int | None = None
     batch_size: int | None = None
@@ -36,7 +37,7 @@ class TrainOptions:
     bezier_points: int | None = None
     aux_seg: bool | None = None
     pretrained: Path | None = None
-    from_scratch: bool = False
+    from_scratch: bool | None = None
     accumulate: int | None = None
     set_: list[str] = field(default_factory=list)
     eval_every: int | None = None
@@ -54,6 +55,11 @@ class TrainOptions:
         given = [f"train.{name}={value}" for name, value in long_run.items() if value is not None]
         return given + list(self.set_)
 
+    def given(self) -> dict[str, Any]:
+        """The options given, by their parameter's name (the run's own ones among them: out, resume, ...)."""
+        return {option.name: getattr(self, option.name) for option in fields(self)
+                if getattr(self, option.name) is not None}  # fmt: skip
+
 
 @dataclass
 class Launched:
@@ -64,30 +70,31 @@ class Launched:
     summary: dict
 
 
-def run_config(options: TrainOptions, given: dict[str, Any]) -> tuple[Config, Path, set[str]]:
-    """The config and the data of the run, and on resume the config fields told on the command line
-    (`given`: the options given there, by their parameter's name), which run.json logs."""
+def run_config(options: TrainOptions) -> tuple[Config, Path, set[str]]:
+    """The config and the data of the run, and on resume the config fields told by the options given,
+    which run.json logs."""
     data, told = options.data, set()
     if options.resume:
-        config, told = resume_config(options.out, given, options.overrides())
+        config, told = resume_config(options.out, options.given(), options.overrides())
         data = data or Path(json.loads((options.out / "run.json").read_text())["data"])
     else:
         pretrained = options.pretrained
         if pretrained is not None and not pretrained.is_file():
             raise ValueError(f"--pretrained {pretrained}: no such file")
-        config = resolve_config(options.preset, options.modality, options.epochs, options.batch_size,
-                                options.path_points, options.bezier_points, options.aux_seg,
-                                str(pretrained) if pretrained else None, options.overrides(), options.model,
-                                options.accumulate, options.from_scratch)  # fmt: skip
+        config = resolve_config(options.preset or "paper", options.modality, options.epochs,
+                                options.batch_size, options.path_points, options.bezier_points,
+                                options.aux_seg, str(pretrained) if pretrained else None, options.overrides(),
+                                options.model or "lanegap", options.accumulate,
+                                options.from_scratch)  # fmt: skip
     if data is None:
         raise ValueError("--data is required")
     return config, data, told
 
 
-def launch(options: TrainOptions, given: dict[str, Any]) -> Launched:
+def launch(options: TrainOptions) -> Launched:
     """Check the run folder, put the config together and train it (a resume goes on from its checkpoint)."""
     RunFolder.check_free(options.out, options.resume, options.overwrite)
-    config, data, told = run_config(options, given)
+    config, data, told = run_config(options)
     summary = train(config, data, options.out, resume=options.resume, stop_after=options.stop_after,
                     overwrite=options.overwrite, told=told)  # fmt: skip
     return Launched(config, data, summary)

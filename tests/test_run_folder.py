@@ -341,3 +341,25 @@ def test_no_from_scratch_on_resume_is_refused_where_it_changes_the_run_and_accep
                                            f"encoder.backbone_frozen_stages={frozen}, and it sets which")
         resumed, told = resume_config(out, {"from_scratch": accepted}, [])
         assert resumed.to_dict() == config.to_dict() and told == set()
+
+
+def test_options_set_in_train_options_count_on_resume_from_python(toy_data, tmp_path):
+    """`launch` takes its options from TrainOptions alone: before, a resume read only a separate `given`
+    dict, so that a field set in TrainOptions but left out of it was silently ignored."""
+    from baselines.launch import TrainOptions, launch
+
+    run = tmp_path / "run"
+    result = cli("train", "--data", toy_data, "--out", run, *TRAIN, "--epochs", 2, "--stop-after", 1)
+    assert result.exit_code == 0, result.output
+    before = files(run)
+    with pytest.raises(ValueError) as refused:
+        launch(TrainOptions(out=run, resume=True, batch_size=4))
+    assert str(refused.value).startswith(f"--batch-size 4 on --resume: the run in {run} was trained with "
+                                         "train.batch_size=2, and another batch changes the steps per epoch")
+    assert files(run) == before
+    launched = launch(TrainOptions(out=run, resume=True, batch_size=2, accumulate=2))
+    assert launched.config.model == "lanegap" and launched.config.preset == "tiny"
+    assert launched.config.train.accumulate == 2 and launched.data == toy_data
+    changes = [{"field": "train.accumulate", "before": 0, "after": 2, "step": 2}]
+    assert run_json(run)["config_changes"] == changes
+    assert load_checkpoint(run / "checkpoint.pt")["step"] == 4

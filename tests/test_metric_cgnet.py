@@ -13,16 +13,9 @@ import numpy as np
 import pytest
 
 from benchmark.graph_table import graphs_from_table, read_graph_table
-from benchmark.metric.cgnet import (
-    CGNET_VERSION,
-    CGNetParams,
-    _candidates,
-    cgnet_frame,
-    cgnet_result,
-    interpolated,
-    key_edges,
-)
+from benchmark.metric.cgnet import _candidates, cgnet_frame, cgnet_result, interpolated, key_edges
 from benchmark.metric.cgnet_order import rtree_rank, set_order, tuple_hash
+from benchmark.metric.params import CGNET_VERSION, CGNetParams
 from pipeline.lane_graph import LaneGraph
 
 # ---------------------------------------------------------------------------------------------------

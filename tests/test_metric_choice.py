@@ -92,7 +92,8 @@ def test_cli_report_adds_a_table_per_other_metric(synth_prepared, tmp_path):
 
 
 def test_cgnet_through_the_workers_equals_its_own_functions(pairs):
-    from benchmark.metric.cgnet import CGNetParams, cgnet_frame, cgnet_result
+    from benchmark.metric.cgnet import cgnet_frame, cgnet_result
+    from benchmark.metric.params import CGNetParams
 
     scored, _ = score_frames(pairs, MetricParams(), workers=2, metrics=parse_metrics("cgnet"))
     direct = cgnet_result([cgnet_frame(pred, gt, CGNetParams()) for pred, gt in pairs])

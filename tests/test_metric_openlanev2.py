@@ -19,15 +19,8 @@ import numpy as np
 import pytest
 
 from benchmark.graph_table import graphs_from_table, read_graph_table
-from benchmark.metric.openlanev2 import (
-    NO_SCORE,
-    OPENLANEV2_VERSION,
-    SCORED,
-    OpenLaneV2Params,
-    lanes_of,
-    openlanev2_frame,
-    openlanev2_result,
-)
+from benchmark.metric.openlanev2 import NO_SCORE, SCORED, lanes_of, openlanev2_frame, openlanev2_result
+from benchmark.metric.params import OPENLANEV2_VERSION, OpenLaneV2Params
 from pipeline.io import read_table
 from pipeline.lane_graph import LaneGraph
 

@@ -20,7 +20,8 @@ from rich.console import Console
 from rich.table import Table
 
 from benchmark.graph_table import graphs_from_table, read_graph_table
-from benchmark.metric.cgnet import CGNetParams, cgnet_frame, cgnet_result, interpolated
+from benchmark.metric.cgnet import cgnet_frame, cgnet_result, interpolated
+from benchmark.metric.params import CGNetParams
 from pipeline.lane_graph import LaneGraph
 
 SHARED_AV2 = Path(__file__).resolve().parents[2] / "shared" / "data" / "av2" / "sensor"

@@ -22,7 +22,8 @@ from rich.console import Console
 from rich.table import Table
 
 from benchmark.graph_table import graphs_from_table, read_graph_table
-from benchmark.metric.openlanev2 import OpenLaneV2Params, lanes_of, openlanev2_frame, openlanev2_result
+from benchmark.metric.openlanev2 import lanes_of, openlanev2_frame, openlanev2_result
+from benchmark.metric.params import OpenLaneV2Params
 from pipeline.lane_graph import LaneGraph
 from pipeline.manifest import PreparedData
 from tools.bench_metrics import noisy, prepare_default

@@ -25,7 +25,8 @@ from rich.console import Console
 from rich.table import Table
 
 from benchmark.graph_table import graphs_from_table, read_graph_table
-from benchmark.metric.cgnet import METRICS, STATS, CGNetParams, cgnet_frame
+from benchmark.metric.cgnet import METRICS, STATS, cgnet_frame
+from benchmark.metric.params import CGNetParams
 from pipeline.lane_graph import LaneGraph
 from tools.bench_cgnet import prepare_default
 

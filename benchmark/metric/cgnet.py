@@ -1,5 +1,6 @@
-"""CGNet's GEO / TOPO / JTOPO (XiaoMi/CGNet's topo_eval, as its nuScenes dataset class calls it): CGNetParams,
-one frame's scores (cgnet_frame, numba kernels) and their averages over frames (cgnet_result).
+"""CGNet's GEO / TOPO / JTOPO (XiaoMi/CGNet's topo_eval, as its nuScenes dataset class calls it): one frame's
+scores (cgnet_frame, numba kernels) and their averages over frames (cgnet_result), under CGNetParams
+(params.py, with CGNET_VERSION: the table of metrics names them without loading this module).
 
 docs/METRICS.md describes the definition and how it differs from ours. In short, for one frame:
 
@@ -33,43 +34,17 @@ docs/METRICS.md describes the definition and how it differs from ours. In short,
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from benchmark.metric.cgnet_order import rtree_rank, set_order, tuple_hash
+from benchmark.metric.params import CGNET_VERSION, CGNetParams
 from pipeline.kernels import kernel
 from pipeline.lane_graph import LaneGraph
 
-# The version of this metric, recorded in its result JSON: bump it whenever a change can move any digit.
-CGNET_VERSION = 1
 METRICS = ("geo", "topo", "jtopo")
 STATS = ("precision", "recall", "f1")
 SMALL_TREE = 100  # an R-tree of at most this many entries is one leaf: its order is the insertion order
-
-
-@dataclass(frozen=True)
-class CGNetParams:
-    """The evaluator's constants, in its units (decimetres) as CGNet's nuScenes dataset class sets them."""
-
-    radius: float = 5.0  # GraphEvaluator(radius=5): pairs closer than this (squared distance < radius ** 2)
-    interp_dist: float = 2.5  # edges cut into parts no longer than this
-    prop_dist: float = 80.0  # the walk expands nodes whose depth is below this
-    scale: float = 10.0  # key units per metre: positions are keyed in whole decimetres
-    half_width: float = 150.0  # interpolated nodes kept in -half_width <= x < half_width
-    half_length: float = 300.0  # and -half_length <= y < half_length
-    topo_every: int = 10  # TOPO scores every 10th matched pair
-    box: float = 1.0  # each node's R-tree entry is a square of this half-side (sets only the tie order)
-
-    def __post_init__(self) -> None:
-        for name in ("radius", "interp_dist", "prop_dist", "scale", "half_width", "half_length", "box"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be positive, not {getattr(self, name)}")
-        if self.topo_every < 1:
-            raise ValueError(f"topo_every must be at least 1, not {self.topo_every}")
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 # ---------------------------------------------------------------------------------------------------

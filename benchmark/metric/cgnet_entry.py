@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from benchmark.metric.frame import Frame
+from benchmark.metric.params import CGNetParams
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -20,7 +21,7 @@ STATS = ("precision", "recall", "f1")
 
 def frame_of(frame: Frame, params: MetricParams) -> dict:
     """cgnet_frame of one frame, under the evaluator's own constants (the command's thresholds are ours)."""
-    from benchmark.metric.cgnet import CGNetParams, cgnet_frame
+    from benchmark.metric.cgnet import cgnet_frame
 
     return cgnet_frame(frame.pred, frame.gt, CGNetParams())
 

@@ -1,14 +1,17 @@
 """The `openlanev2` metric variant: OpenLane-V2's DET_l and TOP_ll (v1.1+) of lane graphs cut into lanes at
-their junctions (lanes_of), one frame's contribution (openlanev2_frame) and the scores (openlanev2_result)."""
+their junctions (lanes_of), one frame's contribution (openlanev2_frame) and the scores (openlanev2_result),
+under OpenLaneV2Params (params.py, with OPENLANEV2_VERSION: the table of metrics names them
+without loading this module)."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
 from benchmark.metric.densify import identical_points, unique_edges
+from benchmark.metric.params import OPENLANEV2_VERSION, OpenLaneV2Params
 from pipeline.geometry import Range, resample_polylines
 from pipeline.kernels import kernel
 from pipeline.lane_graph import LaneGraph
@@ -43,9 +46,6 @@ from pipeline.pieces import graph_to_pieces
 #   default sort does not promise to: on AVX-512 machines it reorders them). The matching always gives a
 #   GT lane to the lowest-index prediction among equals.
 
-# Recorded in every result: bump it whenever a change can move any digit of DET_l or TOP_ll.
-OPENLANEV2_VERSION = 1
-
 # The recall steps of the 11-point AP, exactly the floats OpenLane-V2 compares with (0.30000000000000004,
 # 0.7000000000000001, ...): recall is rounded to float32 first, as there, so a recall of exactly 0.7 falls
 # short of its step while 0.3 reaches its own.
@@ -57,36 +57,6 @@ UNCOVERED_CONFIDENCE = 0.5 + float(np.finfo(np.float32).eps)
 
 NO_SCORE = "1.0 for every lane (the format carries no score)"
 SCORED = "the prediction's scores"
-
-
-@dataclass(frozen=True)
-class OpenLaneV2Params:
-    """Every constant of DET_l and TOP_ll, recorded in each result."""
-
-    thresholds: tuple[float, ...] = (1.0, 2.0, 3.0)  # Fréchet distance thresholds, metres (DET_l averages)
-    points: int = 11  # points per lane, even by arc length
-    relax_rate: float = 5e-3  # the distance's relaxation: max(relax_floor, 1 - relax_rate * ego distance)
-    relax_floor: float = 0.5
-    ties: str = "threshold"  # equal confidences: "threshold" (one point of the curve) or "order" (lane order)
-    bev_range: str = "30x60"  # the perception range the graphs were cut to (recorded, not applied)
-
-    def __post_init__(self) -> None:
-        if not self.thresholds or not all(t > 0 for t in self.thresholds):
-            raise ValueError(f"thresholds must be positive, not {self.thresholds}")
-        if self.points < 2:
-            raise ValueError(f"points must be at least 2, not {self.points}")
-        if self.ties not in ("threshold", "order"):
-            raise ValueError(f"ties must be 'threshold' or 'order', not {self.ties!r}")
-        Range.parse(self.bev_range)
-
-    def to_dict(self) -> dict:
-        out = asdict(self)
-        out["thresholds"] = list(self.thresholds)
-        return out
-
-    @classmethod
-    def from_dict(cls, values: dict) -> OpenLaneV2Params:
-        return cls(**{**values, "thresholds": tuple(values["thresholds"])})
 
 
 @dataclass

@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from benchmark.metric.frame import Frame
+from benchmark.metric.params import OpenLaneV2Params
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -19,7 +20,7 @@ REPORT_HEADER = ("DET_l", "TOP_ll")
 
 def frame_of(frame: Frame, params: MetricParams) -> dict:
     """openlanev2_frame of one frame, at the command's range, with the prediction's lane scores."""
-    from benchmark.metric.openlanev2 import OpenLaneV2Params, openlanev2_frame
+    from benchmark.metric.openlanev2 import openlanev2_frame
 
     ol_params = OpenLaneV2Params(bev_range=params.bev_range)
     return openlanev2_frame(frame.pred, frame.gt, ol_params, pred_scores=frame.pred_scores)

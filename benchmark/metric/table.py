@@ -3,10 +3,12 @@ METRICS below, in the order they are computed, written and shown. `cli score`, `
 scoring workers (benchmark/score.py) and the console and report tables read a metric from its record alone;
 no other module tests a metric's name (tests/test_metric_table.py holds them to it).
 
-Adding a metric is one module and one entry: the module holds its parameters with their version, its
-per-frame function (one `Frame` in, a picklable contribution out) and its result function (the
-contributions in frame order in, a JSON-able dict out, recording its parameters and version), its console
-table and its report row, as openlanev2.py does; the entry names them in METRICS (docs/ARCHITECTURE.md).
+Adding a metric is its parameters, one module and one entry: its parameters (a frozen dataclass) and
+their version go into params.py, which imports no numpy; the module holds its per-frame function (one
+`Frame` in, a picklable contribution out) and its result function (the contributions in frame order in, a
+JSON-able dict out, recording its parameters and version), its console table and its report row, as
+openlanev2_entry.py does (its heavy code, imported at the first call, in openlanev2.py); the entry names
+them all, the parameter type and the version included, in METRICS (docs/ARCHITECTURE.md).
 """
 
 from __future__ import annotations
@@ -17,11 +19,17 @@ from typing import TYPE_CHECKING, Any
 
 from benchmark.metric import cgnet_entry, lanegap_entry, openlanev2_entry
 from benchmark.metric.frame import Frame
+from benchmark.metric.params import (
+    CGNET_VERSION,
+    METRIC_VERSION,
+    OPENLANEV2_VERSION,
+    CGNetParams,
+    MetricParams,
+    OpenLaneV2Params,
+)
 
-if TYPE_CHECKING:  # `cli --help` reads this table: its import loads neither numpy nor a metric's module
+if TYPE_CHECKING:  # `cli --help` reads this table: its import loads neither numpy nor a metric's heavy module
     import numpy as np
-
-    from benchmark.metric.params import MetricParams
 
 
 @dataclass(frozen=True)
@@ -34,6 +42,8 @@ class Metric:
 
     name: str  # the --metric word, and the key of its scores in a result (unless always)
     help: str  # what --metric's help says of it
+    params: type  # its parameters, a frozen dataclass recorded in its result (made from the command's)
+    version: int  # recorded in its result: bumped whenever a change can move a digit of its scores
     frame: Callable[[Frame, MetricParams], Any]  # one frame's contribution, picklable (in workers)
     result: Callable[[list, MetricParams], dict]  # the scores of the contributions, in frame order
     add: Callable[[Any, Any], Any] | None = None  # contributions that sum exactly, summed as they come
@@ -50,22 +60,24 @@ class Metric:
 
 
 LANEGAP = Metric(
-    name="lanegap", help="TOPO and Junction TOPO, ours", frame=lanegap_entry.frame_of,
-    result=lanegap_entry.result_of, add=lanegap_entry.add, counts=lanegap_entry.counts_of, always=True,
+    name="lanegap", help="TOPO and Junction TOPO, ours", params=MetricParams, version=METRIC_VERSION,
+    frame=lanegap_entry.frame_of, result=lanegap_entry.result_of, add=lanegap_entry.add,
+    counts=lanegap_entry.counts_of, always=True,
 )  # fmt: skip
 
 METRICS: tuple[Metric, ...] = (
     LANEGAP,
     Metric(
-        name="cgnet", help="CGNet's evaluator", frame=cgnet_entry.frame_of, result=cgnet_entry.result_of,
-        console=cgnet_entry.console_tables, report_title="CGNet's metric (its evaluator: GEO, TOPO, JTOPO)",
+        name="cgnet", help="CGNet's evaluator", params=CGNetParams, version=CGNET_VERSION,
+        frame=cgnet_entry.frame_of, result=cgnet_entry.result_of, console=cgnet_entry.console_tables,
+        report_title="CGNet's metric (its evaluator: GEO, TOPO, JTOPO)",
         report_header=cgnet_entry.REPORT_HEADER, report_row=cgnet_entry.report_row,
     ),
     Metric(
-        name="openlanev2", help="DET_l, TOP_ll", frame=openlanev2_entry.frame_of,
-        result=openlanev2_entry.result_of, console=openlanev2_entry.console_tables,
-        report_title="OpenLane-V2's DET_l and TOP_ll", report_header=openlanev2_entry.REPORT_HEADER,
-        report_row=openlanev2_entry.report_row,
+        name="openlanev2", help="DET_l, TOP_ll", params=OpenLaneV2Params, version=OPENLANEV2_VERSION,
+        frame=openlanev2_entry.frame_of, result=openlanev2_entry.result_of,
+        console=openlanev2_entry.console_tables, report_title="OpenLane-V2's DET_l and TOP_ll",
+        report_header=openlanev2_entry.REPORT_HEADER, report_row=openlanev2_entry.report_row,
     ),
 )  # fmt: skip
 

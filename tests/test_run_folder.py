@@ -109,7 +109,7 @@ def test_a_config_changed_by_hand_is_refused_and_a_set_on_resume_is_logged(toy_d
     (run / "config.json").write_text(json.dumps(trained))
     before = files(run)
     refused = cli("train", "--out", run, "--resume", "--set", "encoder.channels=8")  # told, but no fit
-    one_error_line(refused, "weights do not fit the model of this config", "size mismatch")
+    one_error_line(refused, "--set encoder.channels=8 on --resume", "it shapes the model")
     assert files(run) == before
 
     result = cli("train", "--out", run, "--resume", "--set", f"train.lr={2 * lr}")
@@ -363,3 +363,47 @@ def test_options_set_in_train_options_count_on_resume_from_python(toy_data, tmp_
     changes = [{"field": "train.accumulate", "before": 0, "after": 2, "step": 2}]
     assert run_json(run)["config_changes"] == changes
     assert load_checkpoint(run / "checkpoint.pt")["step"] == 4
+
+
+def test_a_set_on_resume_that_reshapes_the_model_is_refused_by_name_before_any_work(
+    toy_data, tmp_path, monkeypatch
+):
+    """Before, a --set of a field that shapes the model but that KEPT_ON_RESUME does not list passed the
+    check of the options and failed only when the checkpoint's weights were loaded, after the dataset, the
+    model and the validation were built. Now the models of the two configs are compared on the meta device
+    and the --set items that reshape it are named; the others of the command line are not."""
+    import baselines.launch
+
+    run = tmp_path / "run"
+    result = cli("train", "--data", toy_data, "--out", run, *TRAIN, "--epochs", 2, "--stop-after", 1)
+    assert result.exit_code == 0, result.output
+    trained = load_config(run / "config.json")
+    before = files(run)
+
+    def never(*args, **kwargs):
+        raise AssertionError("the refused resume started training")
+
+    monkeypatch.setattr(baselines.launch, "train", never)
+    lr, channels, paths = trained.train.lr, trained.encoder.channels, trained.decoder.num_paths
+    refused = {
+        ("--set", f"decoder.num_paths={paths + 2}", "--set", f"train.lr={2 * lr}"): (
+            f"--set decoder.num_paths={paths + 2} on --resume: the run in {run} was trained with "
+            f"decoder.num_paths={paths}, and it shapes the model, whose weights the checkpoint holds: a "
+            "resume goes on with it"
+        ),
+        ("--set", f"encoder.channels={2 * channels}", "--set", f"decoder.num_paths={paths + 2}"): (
+            f"--set encoder.channels={2 * channels} --set decoder.num_paths={paths + 2} on --resume: the run "
+            f"in {run} was trained with encoder.channels={channels}, decoder.num_paths={paths}, and they "
+            "shape the model, whose weights the checkpoint holds: a resume goes on with them"
+        ),
+    }
+    for args, why in refused.items():
+        error = one_error_line(cli("train", "--out", run, "--resume", *args), why)
+        assert error.startswith(f"error: {why}"), error
+    assert files(run) == before  # nothing written
+    # a field of the same sections that keeps every shape is a told change, as before
+    from baselines.models import resume_config
+
+    dropout = trained.decoder.dropout
+    config, told = resume_config(run, {}, [f"decoder.dropout={dropout / 2}", "train.lr=0.5"])
+    assert told == {"decoder.dropout", "train.lr"} and config.decoder.dropout == dropout / 2

@@ -155,6 +155,42 @@ def field_value(config: Config, name: str) -> Any:
     return getattr(getattr(config, section), field_name) if dot else getattr(config, name)
 
 
+def parameter_shapes(config: Config) -> dict[str, tuple[int, ...]]:
+    """The shape of each tensor of `config`'s model, built on the meta device: no memory, no file read."""
+    import torch
+
+    with torch.device("meta"):
+        model = build(without_pretrained_weights(config)).model
+    return {name: tuple(tensor.shape) for name, tensor in model.state_dict().items()}
+
+
+def refuse_reshaping(out: Path, trained: Config, config: Config, overrides: list[str]) -> None:
+    """Refuse, in one line naming them, the `--set` items of a resume that change the shape of the model
+    whose weights the checkpoint holds (a field KEPT_ON_RESUME does not list: encoder.channels, ...), so
+    that the resume stops before any work rather than when it loads the weights. train.* shape nothing."""
+    changed = {item.partition("=")[0].strip(): item for item in overrides}
+    changed = {name: item for name, item in changed.items() if not name.startswith("train.")
+               and field_value(trained, name) != field_value(config, name)}  # fmt: skip
+    if not changed:
+        return
+    shapes = parameter_shapes(trained)
+    if parameter_shapes(config) == shapes:
+        return
+
+    def reshapes(name: str) -> bool:
+        alone = copy.deepcopy(trained)
+        set_field(alone, changed[name], f"--set {changed[name]}")
+        return parameter_shapes(alone) != shapes
+
+    names = [name for name in changed if reshapes(name)] or list(changed)  # else only together
+    told = " ".join(f"--set {changed[name]}" for name in names)
+    before = ", ".join(f"{name}={field_value(trained, name)!r}" for name in names)
+    they, them = ("it shapes", "it") if len(names) == 1 else ("they shape", "them")
+    raise ValueError(f"{told} on --resume: the run in {out} was trained with {before}, and {they} the "
+                     f"model, whose weights the checkpoint holds: a resume goes on with {them} (leave the "
+                     "option out, or start another run in another --out)")  # fmt: skip
+
+
 def resume_config(out: Path, options: dict[str, Any], overrides: list[str]) -> tuple[Config, set[str]]:
     """The config that a resume of the run in `out` goes on with, and the fields told on its command line:
     its config.json with `options` (the `cli train` options given, by their parameter's name) and then
@@ -198,4 +234,5 @@ def resume_config(out: Path, options: dict[str, Any], overrides: list[str]) -> t
         keep(field_name, f"--set {item}")
         told.add(field_name)
     config.check_across("--set")
+    refuse_reshaping(out, trained, config, overrides)
     return config, told

@@ -74,16 +74,24 @@ class Vectors:
     read: int  # vectors in the file, every class
 
 
-def vector_kinds(source: Source) -> set[tuple[object, object]] | None:
-    """Detection's look at a file: the (cls_name, type) of its vectors, or None when it is not a JSON file
-    with a results list."""
+def results_list(source: Source) -> list | None:
+    """The file's results list, for detection; None when it is not a JSON file with one."""
     try:
         data = source.json()
     except (ValueError, OSError):
         return None
     if not isinstance(data, dict) or not isinstance(data.get("results"), list):
         return None
-    records = [r for r in data["results"] if isinstance(r, dict) and isinstance(r.get("vectors"), list)]
+    return data["results"]
+
+
+def vector_kinds(source: Source) -> set[tuple[object, object]] | None:
+    """Detection's look at a file: the (cls_name, type) of its vectors, or None when it is not a JSON file
+    with a results list."""
+    results = results_list(source)
+    if results is None:
+        return None
+    records = [r for r in results if isinstance(r, dict) and isinstance(r.get("vectors"), list)]
     return {(v.get("cls_name"), v.get("type")) for r in records for v in r["vectors"] if isinstance(v, dict)}
 
 
@@ -91,15 +99,12 @@ def undecided(source: Source) -> str | None:
     """The line refusing, under auto, a result JSON that no detection recognises because it holds no vector:
     with no sample, what either reader says; with only empty samples, a file either codebase may have
     written, which both score alike but whose result records one's format and kept score (None: neither)."""
-    try:
-        data = source.json()
-    except (ValueError, OSError):
+    results = results_list(source)
+    if results is None:
         return None
-    if not isinstance(data, dict) or not isinstance(data.get("results"), list):
-        return None
-    if not data["results"]:
+    if not results:
         return f"{source.path}: no sample in its results list"
-    if all(isinstance(record, dict) and record.get("vectors") == [] for record in data["results"]):
+    if all(isinstance(record, dict) and record.get("vectors") == [] for record in results):
         return f"{source.path}: no vectors to tell MapTRv2 from CGNet: pass --format maptrv2 or cgnet"
     return None
 

@@ -58,12 +58,12 @@ $(KERNELS): $(STAMP) tools/build_kernels.py $(shell find pipeline benchmark -nam
 	if command -v cc >/dev/null 2>&1; then $(PY) -m tools.build_kernels; else \
 		echo "no C compiler (cc): the kernels are not built ahead of time and run under numba's JIT"; fi
 
-# Two models, under 15 minutes on 2 cores from a fresh clone: 7 epochs (560 steps) where the tiny preset,
+# Two models, about 12 minutes on 2 cores from a fresh clone: 7 epochs (560 steps) where the tiny preset,
 # demo-all and the learning checks train 11 (880 steps); docs/BENCHMARKS.md has its time and breakdown.
 demo: $(STAMP)
 	$(call demo_pipeline,$(DEMO),hdmapnet lanegap,,--epochs 7)
 
-# All four models under the same recipe, then the report with the paper's tables beside it.
+# All four models under the same recipe, then the report with the paper's tables beside it (about 25 minutes).
 demo-all: $(STAMP)
 	$(call demo_pipeline,$(DEMO_ALL),hdmapnet lanegap maptr stsu,--reference paper)
 

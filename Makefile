@@ -63,7 +63,7 @@ $(KERNELS): $(STAMP) tools/build_kernels.py $(shell find pipeline benchmark -nam
 demo: $(STAMP)
 	$(call demo_pipeline,$(DEMO),hdmapnet lanegap,,--epochs 7)
 
-# All four models under the same recipe, then the report with the paper's tables beside it (about 25 minutes).
+# All four models under the same recipe, then the report with the paper's tables beside it (about 30 minutes).
 demo-all: $(STAMP)
 	$(call demo_pipeline,$(DEMO_ALL),hdmapnet lanegap maptr stsu,--reference paper)
 

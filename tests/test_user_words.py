@@ -12,16 +12,19 @@ REPO = Path(__file__).resolve().parents[1]
 WHERE = ("Makefile", "README.md", "cli.py", ".ci", "docs", "tools", "baselines", "pipeline", "benchmark",
          "tests")  # fmt: skip
 SUFFIXES = {".py", ".md", ".sh", ".toml", ".yml", ".yaml", ".txt", ""}
+# Each phrase as its words, joined by any whitespace when the pattern is built, so that this list does not
+# itself read as the prose it keeps out: sizes, fixed seconds and file counts, a fixed interpreter path and
+# an image's package list, each said where the user's own option (LIMIT, GPU_CHECK_OUT, PYTHON) belongs.
 NOT_THE_USERS = (
-    r"64 ?MiB",  # what a remote call carries
-    r"device call",
-    r"travel to the machine",
-    r"within 540 s",  # a fixed limit, where LIMIT is the user's
-    r"\b8 files\b",
-    r"takes at most 8\b",
-    r"as on the device",
-    r"/opt/torch",  # one image's interpreter, where PYTHON is the user's
-    r"KINDS\.md",
+    ("64 ?MiB",),
+    ("device", "call"),
+    ("travel", "to", "the", "machine"),
+    ("within", "540 s"),
+    (r"\b8", r"files\b"),
+    ("takes", "at", "most", r"8\b"),
+    ("as", "on", "the", "device"),
+    ("/opt/" + "torch",),
+    (r"KINDS\.md",),
 )
 
 
@@ -37,7 +40,7 @@ def user_facing_files() -> list[Path]:
 def test_the_docs_and_scripts_name_no_limit_that_is_not_the_users():
     files = user_facing_files()
     assert {REPO / "Makefile", REPO / "README.md", REPO / "tools" / "gpu_setup.sh"} <= set(files)
-    pattern = re.compile("|".join(NOT_THE_USERS), re.IGNORECASE)
+    pattern = re.compile("|".join(r"\s+".join(words) for words in NOT_THE_USERS), re.IGNORECASE)
     found = [
         f"{f.relative_to(REPO)}:{number}: {line.strip()}"
         for f in files

@@ -6,9 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.geometry import Range, clip_polylines
+from pipeline.geometry import AV2_EGO_FROM_BEV, Range, clip_polylines
 from pipeline.kernels import kernel
-from pipeline.records import Lane
+from pipeline.records import AnnotatedLanes, Lane
 
 
 @dataclass
@@ -161,6 +161,30 @@ def crop_lane_graph(lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range) -> 
     edges = np.stack([label[src], label[dst]], axis=1)
     edges = np.unique(edges[edges[:, 0] != edges[:, 1]], axis=0)
     return LaneGraph(x, y, edges[:, 0].astype(np.int32), edges[:, 1].astype(np.int32))
+
+
+# OpenLane-V2's ego frame (x forward, y left) onto the BEV axes (x right, y forward), as for AV2's
+BEV_FROM_OPENLANEV2_EGO = np.linalg.inv(AV2_EGO_FROM_BEV)
+LINK_THRESHOLD = 0.5  # a predicted link counts above this probability, as OpenLane-V2 reads topology_lclc
+
+
+def graph_of_annotated(lanes: AnnotatedLanes, rng: Range | None = None) -> LaneGraph:
+    """The BEV lane graph of OpenLane-V2 lanes: each lane a chain of its points, a link i -> j (an entry of
+    `links` above LINK_THRESHOLD) joining i's last point to j's first, points at one place one vertex (so
+    merges and forks are junctions); clipped to `rng` as crop_lane_graph clips a map (None: unclipped)."""
+    if not len(lanes):
+        return LaneGraph.empty()
+    bev = [p @ BEV_FROM_OPENLANEV2_EGO[:3, :3].T for p in lanes.points]
+    src, dst = np.nonzero(np.asarray(lanes.links) > LINK_THRESHOLD)
+    names = [f"{i:09d}" for i in range(len(bev))]  # LaneMap sorts lanes by id: keep their order
+    successors = [[] for _ in bev]
+    for i, j in zip(src.tolist(), dst.tolist()):
+        successors[i].append(names[j])
+    lane_map = LaneMap.from_lanes([Lane(n, p, s) for n, p, s in zip(names, bev, successors)])
+    if rng is None:
+        reach = float(np.abs(lane_map.points[:, :2]).max()) + 1.0
+        rng = Range(-reach, reach, -reach, reach)
+    return crop_lane_graph(lane_map, np.eye(4), rng)
 
 
 def vertex_positions(label: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -50,6 +50,22 @@ class Frame:
 
 
 @dataclass
+class AnnotatedLanes:
+    """One frame's lane centerlines as OpenLane-V2 annotates them (a frame file's `lane_centerline` and
+    `topology_lclc`) or a submission predicts them, unchanged: the input of OpenLane-V2's own DET_l and
+    TOP_ll. Points are in OpenLane-V2's ego frame (x forward, y left, z up, metres), not the BEV frame;
+    pipeline.lane_graph.graph_of_annotated turns them into a BEV lane graph."""
+
+    points: list[np.ndarray]  # one (n, 3) float64 array per lane, n >= 2, in driving direction
+    links: np.ndarray  # (L, L) float64 topology_lclc, lane i -> lane j: 0/1 annotated, probability predicted
+    ids: list[str]  # each lane's `id`, as a string
+    confidence: np.ndarray | None = None  # (L,) float64, a prediction's lane scores; None: annotated lanes
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+@dataclass
 class Log:
     """One AV2 log or nuScenes scene: its map lanes and its key frames."""
 

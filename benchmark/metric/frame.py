@@ -10,6 +10,7 @@ if TYPE_CHECKING:  # the table of metrics imports this: `cli --help` reads it, w
     import numpy as np
 
     from pipeline.lane_graph import LaneGraph
+    from pipeline.records import AnnotatedLanes
 
 
 @dataclass(frozen=True)
@@ -21,3 +22,9 @@ class Frame:
     pred: LaneGraph
     gt: LaneGraph
     pred_scores: np.ndarray | None = None  # one per edge of `pred`, its lane's confidence; None: no score
+    # OpenLane-V2 data: the frame's annotated lanes, and a submission's predicted lanes as the file holds them
+    gt_lanes: AnnotatedLanes | None = None
+    pred_lanes: AnnotatedLanes | None = None
+    # the frame's ground plane (ground_z, a, b: z = ground_z + a x + b y in the BEV frame), for the heights
+    # of a graph prediction's lanes; None: level ground at z = 0
+    ground: tuple[float, float, float] | None = None

@@ -37,7 +37,7 @@ BestMetric = Literal[
     "miou",
 ]
 PRESET_DEFAULTS = {  # the presets' values of the `cli train` options that default to them
-    "epochs": "paper 110 on nuScenes and 24 on AV2, tiny 11, gpu 16",
+    "epochs": "paper 110 on nuScenes, 24 on AV2 and OpenLane-V2, tiny 11, gpu 16",
     "batch_size": "paper 32, tiny 2, gpu 8",
     "modality": "paper camera, tiny fusion, gpu fusion",
     "path_points": "paper 30, tiny 20, gpu 30",
@@ -259,7 +259,8 @@ def train(
     model: Model = typer.Option("lanegap", help="The baseline to train"),
     preset: Preset = typer.Option(
         "paper", help="paper (the paper's settings), tiny (CPU, seconds per epoch) or gpu (one CUDA GPU)"),
-    modality: Modality = typer.Option(None, show_default=PRESET_DEFAULTS["modality"], help="Sensors"),
+    modality: Modality = typer.Option(
+        None, show_default=PRESET_DEFAULTS["modality"], help="Sensors (OpenLane-V2 has no LiDAR: camera)"),
     epochs: int = typer.Option(None, min=1, show_default=PRESET_DEFAULTS["epochs"], help="Epochs"),
     batch_size: int = typer.Option(
         None, min=1, show_default=PRESET_DEFAULTS["batch_size"], help="Batch size in total over all "

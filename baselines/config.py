@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 Modality = Literal["camera", "lidar", "fusion"]
+Rig = Literal["nuscenes", "av2"]  # whose cameras: their image settings (DataConfig.image_settings)
 BackboneName = Literal["resnet18", "resnet34", "resnet50"]
 # A validation's scores (RUN/val.jsonl, baselines/validate.py) that choose best.pt (train.best_metric).
 BestMetric = Literal[
@@ -179,7 +180,9 @@ def _stack(a: Any, b: Any, like: Any) -> Any:
 class DataConfig:
     """How samples are read. The image settings come twice: for real nuScenes / AV2 and for the synthetic
     data of `cli synth` (its images are already 1/4 and 1/8 of the real sizes, its cameras look level);
-    the loader picks by the dataset's sensor root (pipeline/manifest.py `is_synthetic`)."""
+    the loader picks by the dataset's sensor root (pipeline/manifest.py `is_synthetic`). They are per rig:
+    OpenLane-V2's frames take AV2's (subset A, the seven ring cameras) or nuScenes' (subset B, the six
+    CAM_ cameras) by their cameras (baselines/data.py camera_rig)."""
 
     image_scale_nuscenes: Annotated[float, POSITIVE] = 0.5  # image resize ratio of the paper, on real data
     image_scale_av2: Annotated[float, POSITIVE] = 0.3
@@ -198,17 +201,23 @@ class DataConfig:
     # loader processes (persistent over epochs), at most one per core
     num_workers: Annotated[int, AT_LEAST_0] = 4
 
-    def image_settings(self, dataset: str, synthetic: bool) -> tuple[float, float]:
-        """(resize ratio, fraction of the height cut off the top) of `dataset`'s images."""
+    def image_settings(self, rig: Rig, synthetic: bool) -> tuple[float, float]:
+        """(resize ratio, fraction of the height cut off the top) of the images of `rig`'s cameras."""
+        if rig not in ("nuscenes", "av2"):
+            raise ValueError(f"no image settings for the camera rig {rig!r} (nuscenes or av2)")
         if synthetic:
             nuscenes, av2 = self.synthetic_image_scale_nuscenes, self.synthetic_image_scale_av2
-            return (nuscenes if dataset == "nuscenes" else av2), self.synthetic_image_crop_top
-        scale = self.image_scale_nuscenes if dataset == "nuscenes" else self.image_scale_av2
+            return (nuscenes if rig == "nuscenes" else av2), self.synthetic_image_crop_top
+        scale = self.image_scale_nuscenes if rig == "nuscenes" else self.image_scale_av2
         return scale, self.image_crop_top
 
 
-# The paper's schedules (its implementation details, Tab. 11-12): 110 epochs on nuScenes, 24 on AV2.
-PAPER_EPOCHS = {"nuscenes": 110, "av2": 24}
+# The paper's schedules (its implementation details, Tab. 11-12): 110 epochs on nuScenes, 24 on AV2; on
+# OpenLane-V2 the 24 that TopoNet trains (the paper's OpenLane-V2 table, tab:toponet, sets LaneGAP beside it).
+PAPER_EPOCHS = {"nuscenes": 110, "av2": 24, "openlanev2": 24}
+# The prepared datasets without LiDAR (OpenLane-V2 ships camera images only): cli train takes the camera
+# modality on them and refuses the others.
+WITHOUT_LIDAR = frozenset({"openlanev2"})
 
 
 @dataclass
@@ -340,8 +349,8 @@ class Config:
 def paper() -> Config:
     """The paper's settings (Tab. 11/12): ResNet-50 from ImageNet weights (`--pretrained`), 200 x 100 BEV,
     batch 32 (4 frames a forward pass: 8 GPUs' 4 each, or 8 accumulated micro-batches on one), 110
-    epochs on nuScenes and 24 on AV2. The presets hold no model: baselines.models.resolve_config adds one
-    and its head config."""
+    epochs on nuScenes and 24 on AV2 and OpenLane-V2. The presets hold no model:
+    baselines.models.resolve_config adds one and its head config."""
     return Config(
         preset="paper",
         encoder=EncoderConfig(),

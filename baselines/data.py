@@ -18,9 +18,10 @@ import pyarrow.compute as pc
 import pyarrow.feather as feather
 import torch
 
-from baselines.config import Config
+from baselines.config import Config, Rig
 from baselines.layers.bev_encoder import SensorBatch
 from baselines.layers.targets import Targets
+from pipeline.adapters.av2 import RING_CAMERAS
 from pipeline.camera import scaled_intrinsics
 from pipeline.geometry import ground_height
 from pipeline.io import decode_raster, read_table
@@ -84,6 +85,22 @@ def read_image(path: Path, scale: float, width: int, height: int) -> tuple[np.nd
     if (new_w, new_h) != (image.shape[1], image.shape[0]):
         image = cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_AREA)
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB), new_w / extent_w, new_h / extent_h
+
+
+def camera_rig(frame: dict) -> Rig:
+    """Whose image settings (config.DataConfig) a prepared frame's cameras take: its dataset's on nuScenes
+    and AV2; an OpenLane-V2 frame's by its cameras, AV2's for subset A's seven ring cameras and nuScenes'
+    for subset B's six CAM_ ones (one root may hold both). Other cameras are a ValueError naming them."""
+    if frame["dataset"] in ("nuscenes", "av2"):
+        return frame["dataset"]
+    names = sorted(camera["name"] for camera in frame["cameras"])
+    if names and all(name in RING_CAMERAS for name in names):
+        return "av2"
+    if names and all(name.startswith("CAM_") for name in names):
+        return "nuscenes"
+    raise ValueError(f"{frame['frame_id']}: cameras {', '.join(names) or 'none'} are neither AV2's ring "
+                     "cameras (OpenLane-V2 subset A) nor nuScenes' CAM_ cameras (subset B): no image "
+                     "settings for them")  # fmt: skip
 
 
 def height_above_ground(points: np.ndarray, ground_z: float, ground_slope) -> np.ndarray:
@@ -242,7 +259,7 @@ class PreparedDataset(torch.utils.data.Dataset):
         if not cameras:
             raise ValueError(f"{frame['frame_id']}: no cameras in the prepared frame (camera modality)")
         data = self.config.data
-        scale, crop_top = data.image_settings(frame["dataset"], self.synthetic)
+        scale, crop_top = data.image_settings(camera_rig(frame), self.synthetic)
         images, intrinsics, extrinsics, sizes = [], [], [], []
         for camera in cameras:
             path = self.sensor_root / camera["image_path"]

@@ -12,10 +12,11 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from baselines.config import Config
+from baselines.config import WITHOUT_LIDAR, Config
 from baselines.models import resolve_config, resume_config
 from baselines.run_folder import RunFolder
 from baselines.train import train
+from pipeline.manifest import PreparedData
 
 LONG_RUN = ("eval_every", "eval_frames", "best_metric", "checkpoint_every", "max_bad_steps")  # train.NAME
 
@@ -69,26 +70,53 @@ class Launched:
     data: Path
     summary: dict
 
+    @property
+    def title(self) -> str:
+        """What was trained, how and on what (`cli train`'s heading)."""
+        config = self.config
+        return f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {self.data}"
+
 
 def run_config(options: TrainOptions) -> tuple[Config, Path, set[str]]:
     """The config and the data of the run, and on resume the config fields told by the options given,
-    which run.json logs."""
+    which run.json logs. On a dataset without LiDAR (WITHOUT_LIDAR) the modality is camera unless given,
+    and another is refused (check_modality)."""
     data, told = options.data, set()
     if options.resume:
         config, told = resume_config(options.out, options.given(), options.overrides())
         data = data or Path(json.loads((options.out / "run.json").read_text())["data"])
     else:
+        if data is None:
+            raise ValueError("--data is required")
         pretrained = options.pretrained
         if pretrained is not None and not pretrained.is_file():
             raise ValueError(f"--pretrained {pretrained}: no such file")
-        config = resolve_config(options.preset or "paper", options.modality, options.epochs,
+        camera_only = PreparedData.open(data).kind in WITHOUT_LIDAR
+        modality = options.modality or ("camera" if camera_only else None)
+        config = resolve_config(options.preset or "paper", modality, options.epochs,
                                 options.batch_size, options.path_points, options.bezier_points,
                                 options.aux_seg, str(pretrained) if pretrained else None, options.overrides(),
                                 options.model or "lanegap", options.accumulate,
                                 options.from_scratch)  # fmt: skip
-    if data is None:
-        raise ValueError("--data is required")
+    check_modality(config, PreparedData.open(data), options)
     return config, data, told
+
+
+def check_modality(config: Config, data: PreparedData, options: TrainOptions) -> None:
+    """A dataset without LiDAR (OpenLane-V2's: camera images only) trains the camera modality alone: another
+    is refused in one line naming where it came from and the dataset, before any work."""
+    modality = config.encoder.modality
+    if data.kind not in WITHOUT_LIDAR or modality == "camera":
+        return
+    set_items = [item for item in options.set_ if item.partition("=")[0].strip() == "encoder.modality"]
+    if set_items:  # applied after --modality: the last one wins
+        source = f"--set {set_items[-1]}"
+    elif options.modality:
+        source = f"--modality {options.modality}"
+    else:
+        source = f"the run {options.out} (modality {modality})"
+    raise ValueError(f"{source}: {data.path} is a prepared {data.kind} dataset (its manifest.json), which "
+                     "has no LiDAR: train on its cameras (--modality camera, the default on it)")  # fmt: skip
 
 
 def launch(options: TrainOptions) -> Launched:

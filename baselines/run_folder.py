@@ -39,7 +39,9 @@ from pipeline.manifest import PreparedData
 console = Console(stderr=True)
 TRAINING_FILES = ("config.json", "run.json", "log.jsonl", "val.jsonl", "tb",
                   CHECKPOINT, PREVIOUS, DAMAGED, BEST)  # fmt: skip
-EVALUATION_FILES = ("predictions.parquet", FRAME_COUNTS, "metrics.json")  # benchmark/score.py write_run
+SUBMISSION = "submission.pkl"  # cli eval on OpenLane-V2 data: its predictions in OpenLane-V2's format
+# benchmark/score.py write_run's, and baselines/evaluate.py's submission
+EVALUATION_FILES = ("predictions.parquet", FRAME_COUNTS, "metrics.json", SUBMISSION)
 # every file a run folder holds (the one list): `cli train --overwrite` removes them, and refuses without it
 RUN_FOLDER_FILES = TRAINING_FILES + EVALUATION_FILES
 EVENTS = "events.out.tfevents.*"  # TensorBoard's files, in tb/

@@ -105,8 +105,8 @@ def use_dataset_schedule(config: Config, data: PreparedData) -> str:
     kind = data.kind
     if kind not in PAPER_EPOCHS:
         manifest = data.path / "manifest.json"
-        raise ValueError(f"{manifest}: no dataset kind (nuscenes or av2) to take the paper's schedule from: "
-                         "give --epochs")  # fmt: skip
+        raise ValueError(f"{manifest}: no dataset kind ({', '.join(PAPER_EPOCHS)}) to take the paper's "
+                         "schedule from: give --epochs")  # fmt: skip
     config.train.epochs = PAPER_EPOCHS[kind]
     return f"the paper's {kind} schedule"
 

@@ -100,10 +100,11 @@ def test_the_choices_and_preset_defaults_are_those_of_the_config():
     assert typing.get_args(cli.Modality) == typing.get_args(ConfigModality)
     assert typing.get_args(cli.BestMetric) == typing.get_args(ConfigBestMetric)
     presets = {name: resolve_config(name) for name in PRESETS}  # LaneGAP, cli train's default model
-    assert PAPER_EPOCHS == {"nuscenes": 110, "av2": 24}
+    assert PAPER_EPOCHS == {"nuscenes": 110, "av2": 24, "openlanev2": 24}
     values = {
         # 0: the paper's schedule of the dataset's kind
-        "epochs": {name: c.train.epochs or "110 on nuScenes and 24 on AV2" for name, c in presets.items()},
+        "epochs": {name: c.train.epochs or "110 on nuScenes, 24 on AV2 and OpenLane-V2"
+                   for name, c in presets.items()},
         "batch_size": {name: c.train.batch_size for name, c in presets.items()},
         "modality": {name: c.encoder.modality for name, c in presets.items()},
         "path_points": {name: c.decoder.path_points for name, c in presets.items()},

@@ -117,12 +117,21 @@ def crop_lane_graph(lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range) -> 
     survives only when the end of the lane and the start of the successor both lie inside the range;
     its two endpoints then become one vertex (at their mean, which is the shared point in real maps).
     """
+    return crop_scored_lane_graph(lane_map, world_to_ego, rng)[0]
+
+
+def crop_scored_lane_graph(
+    lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range, lane_scores: np.ndarray | None = None
+) -> tuple[LaneGraph, np.ndarray | None]:
+    """(crop_lane_graph's graph, each edge's score): the highest score of the lanes it lies on (`lane_scores`:
+    one per lane of `lane_map`, in its order; None: no scores)."""
+    no_edge = (LaneGraph.empty(), None if lane_scores is None else np.zeros(0))
     ego_xy = -world_to_ego[:3, :3].T @ world_to_ego[:3, 3]
     near = np.flatnonzero(
         np.linalg.norm(lane_map.centers - ego_xy[:2], axis=1) <= lane_map.radii + rng.radius
     )
     if len(near) == 0:
-        return LaneGraph.empty()
+        return no_edge
     starts, ends = lane_map.offsets[near], lane_map.offsets[near + 1]
     counts = ends - starts
     take = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts) + np.arange(counts.sum())
@@ -133,7 +142,7 @@ def crop_lane_graph(lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range) -> 
         np.ascontiguousarray(ego[:, :2]), offsets, rng.x_min, rng.x_max, rng.y_min, rng.y_max
     )
     if len(points) == 0:
-        return LaneGraph.empty()
+        return no_edge
 
     # edges between consecutive points of each clipped piece
     n = len(points)
@@ -158,9 +167,11 @@ def crop_lane_graph(lane_map: LaneMap, world_to_ego: np.ndarray, rng: Range) -> 
     label = merge_coincident(label, x, y)
     x, y = vertex_positions(label, points)
 
-    edges = np.stack([label[src], label[dst]], axis=1)
-    edges = np.unique(edges[edges[:, 0] != edges[:, 1]], axis=0)
-    return LaneGraph(x, y, edges[:, 0].astype(np.int32), edges[:, 1].astype(np.int32))
+    score = None
+    if lane_scores is not None:  # each edge's lane: the lane of the piece its first point belongs to
+        point_piece = np.repeat(np.arange(len(piece_lane)), np.diff(piece_offsets))
+        score = np.asarray(lane_scores, np.float64)[near][piece_lane][point_piece[src]]
+    return graph_of_edges(x, y, label[src], label[dst], score)
 
 
 # OpenLane-V2's ego frame (x forward, y left) onto the BEV axes (x right, y forward), as for AV2's
@@ -172,8 +183,16 @@ def graph_of_annotated(lanes: AnnotatedLanes, rng: Range | None = None) -> LaneG
     """The BEV lane graph of OpenLane-V2 lanes: each lane a chain of its points, a link i -> j (an entry of
     `links` above LINK_THRESHOLD) joining i's last point to j's first, points at one place one vertex (so
     merges and forks are junctions); clipped to `rng` as crop_lane_graph clips a map (None: unclipped)."""
+    return scored_graph_of_annotated(lanes, rng)[0]
+
+
+def scored_graph_of_annotated(
+    lanes: AnnotatedLanes, rng: Range | None = None
+) -> tuple[LaneGraph, np.ndarray | None]:
+    """(graph_of_annotated's graph, each edge's score: the highest confidence of the lanes it lies on; None
+    for annotated lanes, which have no confidence)."""
     if not len(lanes):
-        return LaneGraph.empty()
+        return LaneGraph.empty(), None if lanes.confidence is None else np.zeros(0)
     bev = [p @ BEV_FROM_OPENLANEV2_EGO[:3, :3].T for p in lanes.points]
     src, dst = np.nonzero(np.asarray(lanes.links) > LINK_THRESHOLD)
     names = [f"{i:09d}" for i in range(len(bev))]  # LaneMap sorts lanes by id: keep their order
@@ -184,7 +203,7 @@ def graph_of_annotated(lanes: AnnotatedLanes, rng: Range | None = None) -> LaneG
     if rng is None:
         reach = float(np.abs(lane_map.points[:, :2]).max()) + 1.0
         rng = Range(-reach, reach, -reach, reach)
-    return crop_lane_graph(lane_map, np.eye(4), rng)
+    return crop_scored_lane_graph(lane_map, np.eye(4), rng, lanes.confidence)
 
 
 def vertex_positions(label: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -137,9 +137,10 @@ def synth(
     workers: int = typer.Option(1, min=1, help="Worker processes, one log at a time each (the same bytes)"),
     as_json: AsJson = False,
 ) -> None:  # fmt: skip
-    """Write a synthetic raw dataset in the real AV2 and nuScenes on-disk formats; the defaults are the
-    learning checks' data (16 training logs x 10 frames 2 s apart, 2 validation logs x 20 frames 1 s apart on
-    a world of their own). Guide: docs/guide/prepare.md.
+    """Write a synthetic raw dataset in the real AV2 and nuScenes on-disk formats, and OpenLane-V2's (subset
+    A, OUT/openlanev2/) converted from its AV2 logs; the defaults are the learning checks' data (16 training
+    logs x 10 frames 2 s apart, 2 validation logs x 20 frames 1 s apart on a world of their own). Guide:
+    docs/guide/prepare.md.
 
     \b
     Examples:
@@ -157,7 +158,8 @@ def synth(
                               val_frame_period=val_frame_period)  # fmt: skip
     worlds = ", ".join(f"{world['index']} {world['nuscenes_map']}" for world in summary["worlds"])
     heading = f"synth, seed {summary['seed']}: worlds {worlds}"
-    wrote = [out / summary["av2_root"], out / summary["nuscenes_root"], out / "synth.json"]
+    wrote = [out / summary[root] for root in ("av2_root", "nuscenes_root", "openlanev2_root")]
+    wrote.append(out / "synth.json")
     finish(summary, [(heading, summary_table(summary))], wrote, as_json)
 
 

@@ -1,8 +1,10 @@
-"""`cli synth`: a tiny synthetic raw dataset, the same world written in the AV2 and nuScenes on-disk formats.
+"""`cli synth`: a tiny synthetic raw dataset, the same world written in the AV2 and nuScenes on-disk formats,
+and OpenLane-V2's (subset A) converted from the AV2 logs.
 
     out/av2/sensor/{train,val}/<log_id>/...   read by the av2 API
     out/nuscenes/{v1.0-mini,maps}/...         read by nuscenes-devkit (v1.0-mini's split scene names;
                                               v1.0-trainval's beyond 8 training logs)
+    out/openlanev2/{train,val}/<log_id>/...   OpenLane-V2's frame files, images hard-linked to the AV2 logs'
 
 Logs spread over `worlds` procedural worlds (one nuScenes map location / AV2 city each); validation logs
 drive only in the last `val_worlds`, which no training log visits: a geographically disjoint split.
@@ -23,7 +25,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
 
 from pipeline.executor import run_local
-from pipeline.synth import av2_writer, nuscenes_map, nuscenes_writer
+from pipeline.synth import av2_writer, nuscenes_map, nuscenes_writer, openlanev2_writer
 from pipeline.synth.ids import token
 from pipeline.synth.logs import MAX_LOGS, POSE_PERIOD_NS, LogPlan, nuscenes_version, plan_logs
 from pipeline.synth.sensors import write_sensors
@@ -59,7 +61,7 @@ def synth(
     plans = plan_logs(built, logs, frames_per_log, seed, round(frame_period * 1e9), val_worlds,
                       val_frames_per_log, round(val_frame_period * 1e9))  # fmt: skip
     driven = sorted({plan.world for plan in plans})
-    av2_root, nuscenes_root = out / "av2" / "sensor", out / "nuscenes"
+    av2_root, nuscenes_root, openlanev2_root = out / "av2" / "sensor", out / "nuscenes", out / "openlanev2"
     summary = {
         "complete": False,
         "seed": seed,
@@ -70,6 +72,7 @@ def synth(
         "sensors": sensors,
         "av2_root": str(av2_root.relative_to(out)),
         "nuscenes_root": str(nuscenes_root.relative_to(out)),
+        "openlanev2_root": str(openlanev2_root.relative_to(out)),
         "nuscenes_version": nuscenes_version(plans),
         "worlds": [_world_summary(built[k], plans) for k in range(worlds)],
         "logs": [_log_summary(plan, built[plan.world]) for plan in plans],
@@ -82,7 +85,7 @@ def synth(
         for k in driven:
             nuscenes_map.write_map(nuscenes_root, built[k], built[k].nuscenes_map, priors[k])
             progress.advance()
-        write = functools.partial(_write_log, built, av2_root, nuscenes_root, sensors)
+        write = functools.partial(_write_log, built, av2_root, nuscenes_root, openlanev2_root, sensors)
         run_local(plans, write, min(workers, len(plans)), lambda plan: progress.advance())
         nuscenes_writer.write_tables(nuscenes_root, built, plans, channels, priors)
         progress.advance()
@@ -91,12 +94,20 @@ def synth(
     return summary
 
 
-def _write_log(built: list[World], av2_root: Path, nuscenes_root: Path, sensors: bool, plan: LogPlan) -> None:
+def _write_log(
+    built: list[World],
+    av2_root: Path,
+    nuscenes_root: Path,
+    openlanev2_root: Path,
+    sensors: bool,
+    plan: LogPlan,
+) -> None:
     """One log's AV2 files and, with sensors, its images and sweeps in both formats (its own seeded
-    random stream: the order of the logs does not change a byte)."""
+    random stream: the order of the logs does not change a byte); then the AV2 log as OpenLane-V2's."""
     log_dir = av2_writer.write_log(av2_root, built[plan.world], plan)
     if sensors:
         write_sensors(built[plan.world], plan, log_dir, nuscenes_root)
+    openlanev2_writer.write_from_av2(log_dir, openlanev2_root, plan.split)
 
 
 def check_arguments(
@@ -151,10 +162,12 @@ def _world_summary(world: World, plans: list[LogPlan]) -> dict:
 
 def _clear(out: Path) -> None:
     """Remove an earlier synth output (its marker proves it is one); refuse to mix with anything else."""
-    ours = [out / "av2", out / "nuscenes"]
+    ours = [out / "av2", out / "nuscenes", out / "openlanev2"]
     if any(p.exists() for p in ours):
         if not (out / MARKER).is_file():
-            raise FileExistsError(f"{out} holds av2/ or nuscenes/ not written by synth; choose another --out")
+            raise FileExistsError(
+                f"{out} holds av2/, nuscenes/ or openlanev2/ not written by synth; choose another --out"
+            )
         for p in ours:
             shutil.rmtree(p, ignore_errors=True)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,95 @@
+"""The real AV2 logs of ../shared/data written in OpenLane-V2's layout: their lanes against the av2 API's map,
+and the frames prepared as OpenLane-V2 against the same frames prepared as AV2 (issue 61's equality)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.records import AnnotatedLanes
+from pipeline.synth.openlanev2_writer import write_from_av2
+
+LOGS = {
+    "adcf7d18-0510-35b0-a2fa-b4cea13a6d76": ("train", 156),
+    "3b3570b4-7b0b-3268-a571-b0889dbf40b6": ("val", 157),
+}
+
+
+@pytest.fixture(scope="module")
+def olv2_root(av2_root, tmp_path_factory) -> Path:
+    """Both real logs written as OpenLane-V2, each in its AV2 split."""
+    root = tmp_path_factory.mktemp("openlanev2_real")
+    for log_id, (split, frames) in LOGS.items():
+        written = write_from_av2(av2_root / split / log_id, root, split)
+        assert (written.frames, written.images_linked, written.images_absent) == (frames, 0, 0)
+    return root
+
+
+def annotated(path: Path) -> AnnotatedLanes:
+    lanes = json.loads(path.read_text())["annotation"]["lane_centerline"]
+    links = json.loads(path.read_text())["annotation"]["topology_lclc"]
+    links = np.array(links, np.float64).reshape(len(lanes), len(lanes))
+    return AnnotatedLanes(
+        [np.array(lane["points"]) for lane in lanes], links, [str(lane["id"]) for lane in lanes]
+    )
+
+
+def test_real_lanes_are_the_map_in_the_ego_frame_with_its_heights(av2_root, olv2_root):
+    """Every written point that is a vertex of the map's centerline (the av2 API's, moved by the av2 API's
+    inverse pose) has its height; every point lies on a centerline; every link joins one point."""
+    from av2.map.map_api import ArgoverseStaticMap
+    from av2.utils.io import read_city_SE3_ego
+
+    from pipeline.adapters.av2 import nearest
+
+    for log_id, (split, _) in LOGS.items():
+        log = av2_root / split / log_id
+        static_map = ArgoverseStaticMap.from_map_dir(log / "map", build_raster=False)
+        centerlines = [
+            static_map.get_lane_segment_centerline(i) for i in sorted(static_map.vector_lane_segments)
+        ]
+        poses = read_city_SE3_ego(log)
+        times = np.array(sorted(poses))
+        files = sorted((olv2_root / split / log_id / "info").glob("*.json"))
+        for path in files[:: len(files) // 6]:
+            city_to_ego = poses[times[nearest(times, int(path.stem))]].inverse()
+            vertices = np.concatenate([city_to_ego.transform_point_cloud(c) for c in centerlines])
+            lanes = annotated(path)
+            points = np.concatenate(lanes.points)
+            assert (np.abs(points[:, 0]) <= 50).all() and (np.abs(points[:, 1]) <= 25).all()
+            gap = np.linalg.norm(points[:, None, :2] - vertices[None, :, :2], axis=2)
+            on_vertex = gap.min(axis=1) < 1e-9
+            assert on_vertex.mean() > 0.8
+            np.testing.assert_allclose(
+                points[on_vertex, 2], vertices[gap[on_vertex].argmin(axis=1), 2], atol=1e-9
+            )
+            heights = points[:, 2]
+            assert heights.max() - heights.min() > 0.3  # real heights, not a flat plane
+            for i, j in zip(*np.nonzero(lanes.links)):
+                np.testing.assert_array_equal(lanes.points[i][-1], lanes.points[j][0])
+
+
+@pytest.mark.parametrize("bev_range", ["30x60", "50x100"])
+def test_real_lanes_give_the_graph_that_prepare_crops_from_av2(av2_root, olv2_root, bev_range):
+    """graph_of_annotated of each written frame, cropped to the range, is crop_lane_graph's graph of the AV2
+    log at that frame: the same vertices to the float and the same edges, every frame."""
+    from pipeline.adapters.av2 import frame_poses, frame_timestamps, read_lanes
+    from pipeline.geometry import Range
+    from pipeline.lane_graph import LaneMap, crop_lane_graph, graph_of_annotated
+    from pipeline.targets import rigid_inverse
+
+    rng = Range.parse(bev_range)
+    for log_id, (split, frames) in LOGS.items():
+        log = av2_root / split / log_id
+        lane_map = LaneMap.from_lanes(read_lanes(log)[0])
+        timestamps = frame_timestamps(log)
+        assert len(timestamps) == frames
+        for t, pose in zip(timestamps.tolist(), frame_poses(log, timestamps)):
+            ours = graph_of_annotated(annotated(olv2_root / split / log_id / "info" / f"{t}.json"), rng)
+            av2 = crop_lane_graph(lane_map, rigid_inverse(pose), rng)
+            assert len(av2.src) > 10
+            for field in ("x", "y", "src", "dst"):
+                np.testing.assert_array_equal(getattr(ours, field), getattr(av2, field))

@@ -174,10 +174,11 @@ def split_files(items: list[str]) -> dict[str, Path]:
     return files
 
 
-@app.command(short_help="Raw AV2 / nuScenes maps -> Parquet training targets")
+@app.command(short_help="Raw AV2 / nuScenes / OpenLane-V2 maps -> Parquet training targets")
 def prepare(
-    dataset: Literal["av2", "nuscenes"] = typer.Option(..., help="The raw dataset's format"),
-    root: Path = typer.Option(..., help="AV2: the folder holding train/, val/, ... ; nuScenes: the dataroot"),
+    dataset: Literal["av2", "nuscenes", "openlanev2"] = typer.Option(..., help="The raw dataset's format"),
+    root: Path = typer.Option(
+        ..., help="AV2, OpenLane-V2: the folder holding train/, val/, ... ; nuScenes: the dataroot"),
     out: Path = typer.Option(..., help="Output folder of the prepared Parquet dataset"),
     version: str = typer.Option(
         "v1.0-trainval", help="nuScenes table version (v1.0-mini, v1.0-trainval, ...)"),
@@ -215,6 +216,12 @@ def prepare(
         None, min=0, show_default="the --range's diagonal: no val or test window shares ground with a "
         "training window", help="geographic: metres kept between val or test frames and training frames"),
     geo_seed: int = typer.Option(0, min=0, help="geographic: the seed of the cells' assignment"),
+    subset: Literal["A", "B"] = typer.Option(
+        None, show_default="both", help="OpenLane-V2: only subset A (AV2 ring cameras) or B (nuScenes "
+        "cameras)"),
+    cities: Path = typer.Option(
+        None, show_default="none: leakage not measured, no geographic scheme", help="OpenLane-V2: a CSV of "
+        "each segment's city (segment_id or source_id, city), whose frame files carry none"),
     as_json: AsJson = False,
 ) -> None:  # fmt: skip
     """Crop lane graphs to the ego frame; write graphs, paths, pieces and rasters to Parquet. A root without
@@ -224,6 +231,8 @@ def prepare(
     Examples:
       cli prepare --dataset av2 --root data/av2/sensor --out prepared/geo --split-scheme geographic
       cli prepare --dataset nuscenes --root data/nuscenes --version v1.0-mini --out prepared/mini
+      cli prepare --dataset openlanev2 --root data/OpenLane-V2 --subset A --cities cities.csv --range 50x100 \
+        --out prepared/olv2
     """
     from benchmark.tables import finish, leakage_table, prepare_table, split_shares_table
     from pipeline.geometry import Range
@@ -239,6 +248,7 @@ def prepare(
             frame_stride=frame_stride, on_error=on_error, overwrite=overwrite,
             split_files=split_files(split_file), executor=executor, address=address,
             split_scheme=split_scheme, geo_cell=geo_cell, geo_buffer=geo_buffer, geo_seed=geo_seed,
+            subset=subset, cities=cities,
         )  # fmt: skip
     wrote = [out, out / "splits.png"] + ([out / "errors.jsonl"] if summary["frames_skipped"] else [])
     tables = [(f"prepared {dataset} from {root}", prepare_table(summary))]

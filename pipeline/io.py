@@ -1,4 +1,5 @@
-"""Parquet I/O of the prepared dataset: one shard per log and table, written atomically."""
+"""Parquet I/O of the prepared dataset: one shard per log and table, written atomically, and the rows of a
+log's tables."""
 
 from __future__ import annotations
 
@@ -6,15 +7,24 @@ import json
 import os
 import zlib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline.errors import DataError
+from pipeline.geometry import matrix_quaternion
+
+if TYPE_CHECKING:
+    from pipeline.records import AnnotatedLanes, Frame
+    from pipeline.targets import FrameTargets, TargetOptions
 
 SCHEMA_VERSION = 3  # 2: frames.ground_z; 3: frames.sample_token and frames.ground_slope
 TABLES = ("frames", "graphs", "paths", "pieces", "piece_links", "rasters")
+# OpenLane-V2's lanes as annotated (with heights) and links, unchanged beside its graph: its shards alone
+ANNOTATED_LANES = "annotated_lanes"
+ALL_TABLES = (*TABLES, ANNOTATED_LANES)
 
 f32_list = pa.list_(pa.float32())
 f64_list = pa.list_(pa.float64())
@@ -87,6 +97,24 @@ SCHEMAS = {
 SCHEMAS["pieces"] = pa.schema(
     [("piece_index", pa.int32()) if f.name == "path_index" else f for f in SCHEMAS["paths"]]
 )
+SCHEMAS[ANNOTATED_LANES] = pa.schema(
+    [
+        ("frame_id", pa.string()),
+        ("openlanev2_split", pa.string()),  # the submission key: the split folder the frame file lies in,
+        ("segment_id", pa.string()),  # its segment
+        ("timestamp", pa.string()),  # and its timestamp as the file names it
+        ("lane_ids", pa.list_(pa.string())),
+        ("lane_sizes", i32_list),  # points per lane
+        ("points", f64_list),  # every lane's (n, 3) points in OpenLane-V2's ego frame, flat, lane after lane
+        ("links", f64_list),  # topology_lclc, (L, L) row-major
+        ("images_missing", pa.int32()),  # the frame's cameras whose image file is absent
+    ]
+)
+
+
+def dataset_tables(dataset: str) -> tuple[str, ...]:
+    """The tables of a dataset's shards: OpenLane-V2's add its annotated lanes."""
+    return ALL_TABLES if dataset == "openlanev2" else TABLES
 
 
 def list_array(values: list[np.ndarray], value_type: pa.DataType) -> pa.ListArray:
@@ -101,8 +129,8 @@ def shard_path(out: Path, table: str, shard: str) -> Path:
     return out / table / f"{shard}.parquet"
 
 
-def shard_done(out: Path, shard: str) -> bool:
-    return all(shard_path(out, table, shard).is_file() for table in TABLES)
+def shard_done(out: Path, shard: str, tables: tuple[str, ...] = TABLES) -> bool:
+    return all(shard_path(out, table, shard).is_file() for table in tables)
 
 
 def write_atomic(path: Path, write) -> None:
@@ -187,6 +215,111 @@ def numbers(array: pa.Array) -> np.ndarray:
     return np.frombuffer(array.buffers()[1], dtype, len(array), array.offset * dtype.itemsize)
 
 
+def frame_row(frame: Frame, targets: FrameTargets) -> dict:
+    return {
+        "frame_id": frame.frame_id,
+        "dataset": frame.dataset,
+        "split": frame.split,
+        "sample_token": frame.sample_token,
+        "log_id": frame.log_id,
+        "timestamp_ns": frame.timestamp_ns,
+        "city": frame.city,
+        "pose_translation": frame.ego_to_world[:3, 3].tolist(),
+        "pose_rotation": matrix_quaternion(frame.ego_to_world).tolist(),
+        "cameras": [
+            {
+                "name": c.name,
+                "image_path": c.image_path,
+                "intrinsics": np.asarray(c.intrinsics, np.float64).ravel().tolist(),
+                "sensor_to_ego": np.asarray(c.sensor_to_ego, np.float64).ravel().tolist(),
+                "width": c.width,
+                "height": c.height,
+            }
+            for c in frame.cameras
+        ],
+        "lidar_path": frame.lidar_path,
+        "lidar_to_ego": np.asarray(frame.lidar_to_ego, np.float64).ravel().tolist(),
+        "ground_z": frame.ground_z,
+        "ground_slope": [float(v) for v in frame.ground_slope],
+        "n_vertices": len(targets.graph.x),
+        "n_edges": len(targets.graph.src),
+        "n_paths": len(targets.paths.vertex_ids),
+        "n_pieces": len(targets.pieces.chains),
+        "n_junctions": len(targets.pieces.junctions),
+        "path_cap_hit": targets.paths.cap_hit,
+    }
+
+
+def chain_table(
+    frame_ids: list[str], chains: list[list[np.ndarray]], graphs, points, lengths, index: str
+) -> pa.Table:
+    """Rows of paths or pieces: one per chain, with its vertex ids, full polyline and resampled points."""
+    flat = [c for frame_chains in chains for c in frame_chains]
+    xs = [g.x[c] for g, frame_chains in zip(graphs, chains) for c in frame_chains]
+    ys = [g.y[c] for g, frame_chains in zip(graphs, chains) for c in frame_chains]
+    resampled = np.concatenate(points).astype(np.float32) if flat else np.zeros((0, 1, 2), np.float32)
+    counts = [len(c) for c in chains]
+    return pa.table(
+        {
+            "frame_id": pa.array(np.repeat(frame_ids, counts).tolist(), pa.string()),
+            index: pa.array(np.concatenate([np.arange(n) for n in counts] or [[]]).astype(np.int32)),
+            "vertex_ids": list_array([c.astype(np.int32) for c in flat], pa.int32()),
+            "x": list_array(xs, pa.float32()),
+            "y": list_array(ys, pa.float32()),
+            "rx": list_array(list(resampled[:, :, 0]), pa.float32()),
+            "ry": list_array(list(resampled[:, :, 1]), pa.float32()),
+            "length": pa.array(np.concatenate(lengths or [[]]).astype(np.float32)),
+        }
+    )
+
+
+def log_tables(
+    frames: list[Frame], targets: list[FrameTargets], options: TargetOptions
+) -> dict[str, pa.Table]:
+    ids = [f.frame_id for f in frames]
+    graphs = [t.graph for t in targets]
+    height, width = options.grid.shape
+    links = [(t.pieces.link_src, t.pieces.link_dst) for t in targets]
+    return {
+        "frames": pa.Table.from_pylist(list(map(frame_row, frames, targets)), SCHEMAS["frames"]),
+        "graphs": pa.table(
+            {
+                "frame_id": pa.array(ids, pa.string()),
+                "x": list_array([g.x for g in graphs], pa.float32()),
+                "y": list_array([g.y for g in graphs], pa.float32()),
+                "src": list_array([g.src for g in graphs], pa.int32()),
+                "dst": list_array([g.dst for g in graphs], pa.int32()),
+            }
+        ),
+        "paths": chain_table(
+            ids, [t.paths.vertex_ids for t in targets], graphs,
+            [t.path_points for t in targets], [t.path_lengths for t in targets], "path_index",
+        ),
+        "pieces": chain_table(
+            ids, [t.pieces.chains for t in targets], graphs,
+            [t.piece_points for t in targets], [t.piece_lengths for t in targets], "piece_index",
+        ),
+        "piece_links": pa.table(
+            {
+                "frame_id": pa.array(np.repeat(ids, [len(s) for s, _ in links]).tolist(), pa.string()),
+                "src_piece": pa.array(np.concatenate([s for s, _ in links] or [[]]).astype(np.int32)),
+                "dst_piece": pa.array(np.concatenate([d for _, d in links] or [[]]).astype(np.int32)),
+            }
+        ),
+        "rasters": pa.table(
+            {
+                "frame_id": pa.array(ids, pa.string()),
+                "height": pa.array([height] * len(ids), pa.int32()),
+                "width": pa.array([width] * len(ids), pa.int32()),
+                "resolution": pa.array([options.resolution] * len(ids), pa.float32()),
+                "line_width": pa.array([options.line_width] * len(ids), pa.int32()),
+                "mask": pa.array([encode_mask(t.mask) for t in targets], pa.binary()),
+                "direction": pa.array([encode_raster(t.direction) for t in targets], pa.binary()),
+            }
+        ),
+    }  # fmt: skip
+
+
 def count_rows(out: Path, table: str) -> int:
     return sum(pq.read_metadata(p).num_rows for p in sorted((out / table).glob("*.parquet")))
 
@@ -207,3 +340,43 @@ def decode_raster(row: dict) -> tuple[np.ndarray, np.ndarray]:
     mask = np.unpackbits(bits, count=shape[0] * shape[1]).reshape(shape)
     direction = np.frombuffer(zlib.decompress(row["direction"]), np.uint8).reshape(shape)
     return mask, direction
+
+
+def read_annotated_lanes(data: Path, frame_ids=None) -> dict[str, AnnotatedLanes]:
+    """The annotated lanes of an OpenLane-V2 prepared dataset, unchanged and uncropped (points in
+    OpenLane-V2's ego frame, links 0/1), by frame id: every frame's, or those of `frame_ids` that it holds."""
+    from pipeline.records import AnnotatedLanes
+
+    columns = ["frame_id", "lane_ids", "lane_sizes", "points", "links"]
+    table = read_table(openlanev2_data(data), ANNOTATED_LANES, columns)
+    wanted = None if frame_ids is None else set(frame_ids)
+    lanes = {}
+    for row in table.to_pylist():
+        if wanted is not None and row["frame_id"] not in wanted:
+            continue
+        count = len(row["lane_ids"])
+        points = np.asarray(row["points"], np.float64).reshape(-1, 3)
+        splits = np.cumsum(row["lane_sizes"])[:-1] if count else []
+        lanes[row["frame_id"]] = AnnotatedLanes(
+            list(np.split(points, splits)) if count else [],
+            np.asarray(row["links"], np.float64).reshape(count, count),
+            list(row["lane_ids"]),
+        )
+    return lanes
+
+
+def read_openlanev2_keys(data: Path) -> dict[str, tuple[str, str, str]]:
+    """Frame id -> its OpenLane-V2 submission key: (split folder, segment_id, timestamp as the file names
+    it)."""
+    table = read_table(openlanev2_data(data), ANNOTATED_LANES, ["frame_id", "openlanev2_split", "segment_id",
+                                                                 "timestamp"])  # fmt: skip
+    columns = [table.column(name).to_pylist() for name in table.column_names]
+    return {frame: (split, segment, timestamp) for frame, split, segment, timestamp in zip(*columns)}
+
+
+def openlanev2_data(data: Path) -> Path:
+    """`data` if it holds OpenLane-V2's annotated lanes, else one ValueError saying what it is."""
+    if not (Path(data) / ANNOTATED_LANES).is_dir():
+        raise ValueError(f"{data}: holds no {ANNOTATED_LANES} (not a dataset prepared with `cli prepare "
+                         "--dataset openlanev2`)")  # fmt: skip
+    return Path(data)

@@ -93,7 +93,7 @@ class PreparedData:
 
     @property
     def kind(self) -> str | None:
-        """"nuscenes" or "av2" as the manifest records it; None without one."""
+        """"nuscenes", "av2" or "openlanev2" as the manifest records it; None without one."""
         return self.manifest.get("dataset")
 
     @property
@@ -115,6 +115,12 @@ class PreparedData:
     @property
     def targets(self) -> dict:
         return targets_of(self.manifest)
+
+    @property
+    def frames_without_images(self) -> int:
+        """The frames whose frame file names an image that is absent (OpenLane-V2's: a training run cannot
+        read them); 0 for the other datasets, whose frames name only the images they have."""
+        return int(self.manifest.get("frames_without_images", 0))
 
     def check_targets(self, trained: dict, what: str) -> None:
         refuse_stale(trained, self.targets, self.path, what)
@@ -200,7 +206,7 @@ def written_files(folder: Path) -> list[Path]:
     for name in (MANIFEST, ERRORS, PICTURE):
         found += [folder / name] if (folder / name).is_file() else []
         found += sorted(folder.glob(f".{name}.tmp-*"))
-    for table in io.TABLES:
+    for table in io.ALL_TABLES:
         found += sorted((folder / table).glob("*__*.parquet"))
         found += sorted((folder / table).glob(".*__*.parquet.tmp-*"))
     return found
@@ -211,7 +217,7 @@ def remove_output(folder: Path) -> None:
     they are empty (what is left is not ours)."""
     for path in written_files(folder):
         path.unlink()
-    for sub in [folder / table for table in io.TABLES] + [folder]:
+    for sub in [folder / table for table in io.ALL_TABLES] + [folder]:
         with contextlib.suppress(OSError):  # absent, or holding what is not ours
             sub.rmdir()
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import hashlib
 import json
 import resource
 import time
@@ -20,7 +21,6 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from pipeline import io
 from pipeline.errors import DataError
 from pipeline.executor import import_ray, run_local, run_ray
-from pipeline.geometry import matrix_quaternion
 from pipeline.lane_graph import LaneMap
 from pipeline.manifest import (
     ERRORS,
@@ -51,7 +51,7 @@ from pipeline.targets import FrameTargets, TargetOptions, flat_pose, frame_targe
 console = Console(stderr=True)
 
 # what manifest.json holds of the summary beside its last_run: measured over the whole folder, or the plan's
-BESIDE_LAST_RUN = ("leakage", "split_shares")
+BESIDE_LAST_RUN = ("leakage", "split_shares", "frames_without_images")
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,7 @@ class Job:
     split: str  # of every frame, or "" when `frame_splits` gives each frame's
     name: str
     n_frames: int  # the frames it prepares
-    ref: object  # av2: the log folder; nuscenes: a SceneRef
+    ref: object  # av2: the log folder; nuscenes: a SceneRef; openlanev2: a SegmentRef
     root: Path
     frame_splits: dict[int, str | None] | None = None  # timestamp_ns -> split, None: left out
     planned: tuple[str, ...] = ()  # every split the plan gives its frames, --split or not
@@ -74,6 +74,28 @@ class Job:
     def shards(self) -> list[str]:
         splits = {self.split} if self.frame_splits is None else set(self.frame_splits.values()) - {None}
         return [f"{split}__{self.name}" for split in sorted(splits)]
+
+
+@dataclass(frozen=True)
+class SourceOptions:
+    """What of a raw root is read, and what its files do not say: OpenLane-V2's --subset (A: the AV2 ring
+    cameras, B: the nuScenes cameras; None: both) and --cities (a CSV of each segment's city)."""
+
+    subset: str | None = None
+    cities: Path | None = None
+
+    def check(self, dataset: str, scheme: str) -> None:
+        if dataset != "openlanev2" and (self.subset or self.cities):
+            given = "--subset" if self.subset else "--cities"
+            raise ValueError(f"{given} is for --dataset openlanev2, not {dataset}")
+        if self.subset not in (None, "A", "B"):
+            raise ValueError(f"--subset must be A or B, not {self.subset!r}")
+        if self.cities is not None and not Path(self.cities).is_file():
+            raise ValueError(f"{self.cities}: --cities file not found")
+        if dataset == "openlanev2" and scheme == "geographic" and self.cities is None:
+            raise ValueError("--split-scheme geographic needs each segment's city, which OpenLane-V2's "
+                             "frame files do not carry: give --cities FILE (segment_id or source_id, "
+                             "city)")  # fmt: skip
 
 
 @dataclass
@@ -89,7 +111,9 @@ class LogResult:
     peak_mib: float = 0.0  # peak resident memory of the process that prepared it, so far
 
 
-def find_jobs(dataset: str, root: Path, version: str, split: str | None, frame_stride: int) -> list[Job]:
+def find_jobs(
+    dataset: str, root: Path, version: str, split: str | None, frame_stride: int, source: SourceOptions
+) -> list[Job]:
     if dataset == "av2":
         from pipeline.adapters import av2
 
@@ -104,7 +128,14 @@ def find_jobs(dataset: str, root: Path, version: str, split: str | None, frame_s
             Job("nuscenes", r.split, r.name, -(-r.n_frames // frame_stride), r, root)
             for r in nuscenes.find_scenes(root, version, split)
         ]
-    raise ValueError(f"unknown dataset {dataset!r}: expected av2 or nuscenes")
+    if dataset == "openlanev2":
+        from pipeline.adapters import openlanev2
+
+        return [
+            Job("openlanev2", r.split, r.segment_id, -(-len(r.files) // frame_stride), r, root)
+            for r in openlanev2.find_segments(root, split, source.subset, source.cities)
+        ]
+    raise ValueError(f"unknown dataset {dataset!r}: expected av2, nuscenes or openlanev2")
 
 
 def no_logs_found(dataset: str, root: Path, version: str, split: str | None) -> str:
@@ -117,14 +148,20 @@ def no_logs_found(dataset: str, root: Path, version: str, split: str | None) -> 
             f"{root}: no AV2 log{in_split} (looked for ROOT/{split or '<split>'}/<log id>/map/; the folders "
             f"here: {', '.join(folders) or 'none'}); --root is the folder that holds train/, val/, ..."
         )
+    if dataset == "openlanev2":
+        return (f"{root}: no OpenLane-V2 segment{in_split} (looked for ROOT/{split or '<split>'}/"
+                "<segment_id>/info/<timestamp>.json); --root is the folder that holds train/, val/, "
+                "...")  # fmt: skip
     return f"{root}: no nuScenes scene{in_split} in the {version} tables (looked in {root / version})"
 
 
 def check_options(
-    options: TargetOptions, frame_stride: int, workers: int, on_error: str, executor: str
-) -> None:
+    options: TargetOptions, frame_stride: int, workers: int, on_error: str, executor: str,
+    dataset: str = "av2", source: SourceOptions = SourceOptions(), scheme: str = "original",
+) -> None:  # fmt: skip
     """Refuse values that would crash or mean nothing later (a 0-point resample ends the interpreter), each
     named as its `cli prepare` option; the command line refuses most of them already."""
+    source.check(dataset, scheme)
     at_least = {"--path-points": (options.path_points, 2), "--piece-points": (options.piece_points, 2),
                 "--max-paths": (options.max_paths, 1), "--line-width": (options.line_width, 1),
                 "--frame-stride": (frame_stride, 1), "--workers": (workers, 1)}  # fmt: skip
@@ -150,6 +187,10 @@ def load_job(job: Job, frame_stride: int, options: TargetOptions) -> Log:
         from pipeline.adapters import av2
 
         return av2.load_log(job.root, job.split, job.ref, frame_stride)
+    if job.dataset == "openlanev2":
+        from pipeline.adapters import openlanev2
+
+        return openlanev2.load_segment(job.ref, job.root, frame_stride)
     from pipeline.adapters import nuscenes
 
     log = nuscenes.load_log(job.ref, options.bev_range.radius)
@@ -163,6 +204,10 @@ def index_job(job: Job) -> LogIndex:
         from pipeline.adapters import av2
 
         return av2.index_log(job.ref)
+    if job.dataset == "openlanev2":
+        from pipeline.adapters import openlanev2
+
+        return openlanev2.index_segment(job.ref)
     from pipeline.adapters import nuscenes
 
     return nuscenes.index_log(job.ref)
@@ -171,111 +216,6 @@ def index_job(job: Job) -> LogIndex:
 def index_jobs(jobs: list[Job]) -> dict[str, LogIndex]:
     """Every log's LogIndex, with a bar: a whole dataset's poses before any frame is prepared."""
     return {job.name: index_job(job) for job in tracked(jobs, "index logs", len(jobs))}
-
-
-def frame_row(frame: Frame, targets: FrameTargets) -> dict:
-    return {
-        "frame_id": frame.frame_id,
-        "dataset": frame.dataset,
-        "split": frame.split,
-        "sample_token": frame.sample_token,
-        "log_id": frame.log_id,
-        "timestamp_ns": frame.timestamp_ns,
-        "city": frame.city,
-        "pose_translation": frame.ego_to_world[:3, 3].tolist(),
-        "pose_rotation": matrix_quaternion(frame.ego_to_world).tolist(),
-        "cameras": [
-            {
-                "name": c.name,
-                "image_path": c.image_path,
-                "intrinsics": np.asarray(c.intrinsics, np.float64).ravel().tolist(),
-                "sensor_to_ego": np.asarray(c.sensor_to_ego, np.float64).ravel().tolist(),
-                "width": c.width,
-                "height": c.height,
-            }
-            for c in frame.cameras
-        ],
-        "lidar_path": frame.lidar_path,
-        "lidar_to_ego": np.asarray(frame.lidar_to_ego, np.float64).ravel().tolist(),
-        "ground_z": frame.ground_z,
-        "ground_slope": [float(v) for v in frame.ground_slope],
-        "n_vertices": len(targets.graph.x),
-        "n_edges": len(targets.graph.src),
-        "n_paths": len(targets.paths.vertex_ids),
-        "n_pieces": len(targets.pieces.chains),
-        "n_junctions": len(targets.pieces.junctions),
-        "path_cap_hit": targets.paths.cap_hit,
-    }
-
-
-def chain_table(
-    frame_ids: list[str], chains: list[list[np.ndarray]], graphs, points, lengths, index: str
-) -> pa.Table:
-    """Rows of paths or pieces: one per chain, with its vertex ids, full polyline and resampled points."""
-    flat = [c for frame_chains in chains for c in frame_chains]
-    xs = [g.x[c] for g, frame_chains in zip(graphs, chains) for c in frame_chains]
-    ys = [g.y[c] for g, frame_chains in zip(graphs, chains) for c in frame_chains]
-    resampled = np.concatenate(points).astype(np.float32) if flat else np.zeros((0, 1, 2), np.float32)
-    counts = [len(c) for c in chains]
-    return pa.table(
-        {
-            "frame_id": pa.array(np.repeat(frame_ids, counts).tolist(), pa.string()),
-            index: pa.array(np.concatenate([np.arange(n) for n in counts] or [[]]).astype(np.int32)),
-            "vertex_ids": io.list_array([c.astype(np.int32) for c in flat], pa.int32()),
-            "x": io.list_array(xs, pa.float32()),
-            "y": io.list_array(ys, pa.float32()),
-            "rx": io.list_array(list(resampled[:, :, 0]), pa.float32()),
-            "ry": io.list_array(list(resampled[:, :, 1]), pa.float32()),
-            "length": pa.array(np.concatenate(lengths or [[]]).astype(np.float32)),
-        }
-    )
-
-
-def log_tables(
-    frames: list[Frame], targets: list[FrameTargets], options: TargetOptions
-) -> dict[str, pa.Table]:
-    ids = [f.frame_id for f in frames]
-    graphs = [t.graph for t in targets]
-    height, width = options.grid.shape
-    links = [(t.pieces.link_src, t.pieces.link_dst) for t in targets]
-    return {
-        "frames": pa.Table.from_pylist(list(map(frame_row, frames, targets)), io.SCHEMAS["frames"]),
-        "graphs": pa.table(
-            {
-                "frame_id": pa.array(ids, pa.string()),
-                "x": io.list_array([g.x for g in graphs], pa.float32()),
-                "y": io.list_array([g.y for g in graphs], pa.float32()),
-                "src": io.list_array([g.src for g in graphs], pa.int32()),
-                "dst": io.list_array([g.dst for g in graphs], pa.int32()),
-            }
-        ),
-        "paths": chain_table(
-            ids, [t.paths.vertex_ids for t in targets], graphs,
-            [t.path_points for t in targets], [t.path_lengths for t in targets], "path_index",
-        ),
-        "pieces": chain_table(
-            ids, [t.pieces.chains for t in targets], graphs,
-            [t.piece_points for t in targets], [t.piece_lengths for t in targets], "piece_index",
-        ),
-        "piece_links": pa.table(
-            {
-                "frame_id": pa.array(np.repeat(ids, [len(s) for s, _ in links]).tolist(), pa.string()),
-                "src_piece": pa.array(np.concatenate([s for s, _ in links] or [[]]).astype(np.int32)),
-                "dst_piece": pa.array(np.concatenate([d for _, d in links] or [[]]).astype(np.int32)),
-            }
-        ),
-        "rasters": pa.table(
-            {
-                "frame_id": pa.array(ids, pa.string()),
-                "height": pa.array([height] * len(ids), pa.int32()),
-                "width": pa.array([width] * len(ids), pa.int32()),
-                "resolution": pa.array([options.resolution] * len(ids), pa.float32()),
-                "line_width": pa.array([options.line_width] * len(ids), pa.int32()),
-                "mask": pa.array([io.encode_mask(t.mask) for t in targets], pa.binary()),
-                "direction": pa.array([io.encode_raster(t.direction) for t in targets], pa.binary()),
-            }
-        ),
-    }  # fmt: skip
 
 
 def prepare_log(
@@ -299,12 +239,7 @@ def prepare_log(
         if frame.split is None:
             continue
         try:
-            if not np.isfinite(frame.ego_to_world).all():
-                raise DataError(
-                    log.pose_source, f"frame {frame.frame_id}", "ego pose has NaN or infinite values"
-                )
-            pose = flat_pose(frame.ego_to_world) if log.map_is_2d else frame.ego_to_world
-            targets.append(frame_targets(lane_map, pose, options))
+            targets.append(targets_of_frame(job, log, lane_map, frame, options))
             frames.append(frame)
         except DataError as error:
             if on_error == "fail":
@@ -319,7 +254,8 @@ def prepare_log(
     for shard in job.shards:
         split = shard.split("__")[0]
         ours = [i for i, frame in enumerate(frames) if frame.split == split]
-        io.write_shard(out, shard, log_tables([frames[i] for i in ours], [targets[i] for i in ours], options))
+        tables = shard_tables(job, log, [frames[i] for i in ours], [targets[i] for i in ours], options)
+        io.write_shard(out, shard, tables)
     result.frames = len(frames)
     result.paths = sum(len(t.paths.vertex_ids) for t in targets)
     result.pieces = sum(len(t.pieces.chains) for t in targets)
@@ -329,11 +265,37 @@ def prepare_log(
     return result
 
 
+def targets_of_frame(
+    job: Job, log: Log, lane_map: LaneMap, frame: Frame, options: TargetOptions
+) -> FrameTargets:
+    """One frame's targets: from its own annotated lanes (OpenLane-V2), else cropped from the log's map."""
+    if job.dataset == "openlanev2":
+        from pipeline.adapters import openlanev2
+
+        return openlanev2.frame_targets(log, frame, options)
+    if not np.isfinite(frame.ego_to_world).all():
+        raise DataError(log.pose_source, f"frame {frame.frame_id}", "ego pose has NaN or infinite values")
+    pose = flat_pose(frame.ego_to_world) if log.map_is_2d else frame.ego_to_world
+    return frame_targets(lane_map, pose, options)
+
+
+def shard_tables(
+    job: Job, log: Log, frames: list[Frame], targets: list[FrameTargets], options: TargetOptions
+) -> dict[str, pa.Table]:
+    """The tables of one shard: OpenLane-V2's add the frames' annotated lanes, unchanged."""
+    tables = io.log_tables(frames, targets, options)
+    if job.dataset == "openlanev2":
+        from pipeline.adapters import openlanev2
+
+        tables[io.ANNOTATED_LANES] = openlanev2.annotated_table(log, frames)
+    return tables
+
+
 def remove_stale_shards(out: Path, job: Job) -> None:
     """The log's shards of splits its plan no longer gives it (its folder moved to another split folder of
     the same root): its frames must not stand in two splits."""
     planned = {f"{split}__{job.name}" for split in job.planned or {job.split}}
-    for table in io.TABLES:
+    for table in io.ALL_TABLES:
         for path in (out / table).glob(f"*__{job.name}.parquet"):
             if path.stem not in planned:
                 path.unlink()
@@ -454,12 +416,13 @@ def plan_geographic(found: list[Job], splits: SplitOptions, frame_stride: int) -
 
 
 def plan_jobs(
-    dataset: str, root: Path, version: str, split: str | None, frame_stride: int, splits: SplitOptions
-) -> Plan:
+    dataset: str, root: Path, version: str, split: str | None, frame_stride: int, splits: SplitOptions,
+    source: SourceOptions = SourceOptions(),
+) -> Plan:  # fmt: skip
     """The logs to prepare, each frame's split, and what was left out; a root without a log is an error (a
     wrong --root or --dataset would otherwise prepare 0 frames and leave a manifest behind)."""
     whole = bool(splits.split_files) or splits.scheme == "geographic"  # --split picks among the plan's
-    found = find_jobs(dataset, root, version, None if whole else split, frame_stride)
+    found = find_jobs(dataset, root, version, None if whole else split, frame_stride, source)
     if not found and not splits.split_files:
         raise ValueError(no_logs_found(dataset, root, version, split))
     if splits.split_files:
@@ -481,7 +444,10 @@ def plan_jobs(
     return plan
 
 
-def manifest_parameters(options: TargetOptions, frame_stride: int, splits: SplitOptions) -> dict:
+def manifest_parameters(
+    options: TargetOptions, frame_stride: int, splits: SplitOptions, dataset: str = "av2",
+    source: SourceOptions = SourceOptions(),
+) -> dict:  # fmt: skip
     """The options that make the shards what they are, as the manifest records them."""
     options_dict = asdict(options)
     options_dict["bev_range"] = options.bev_range.text
@@ -495,6 +461,10 @@ def manifest_parameters(options: TargetOptions, frame_stride: int, splits: Split
     if splits.scheme == "geographic":
         parameters |= {"geo_cell": splits.geo_cell, "geo_buffer": splits.geo_buffer,
                        "geo_seed": splits.geo_seed}  # fmt: skip
+    if dataset == "openlanev2":  # the subset read and the cities given (their file's contents by digest)
+        cities = source.cities and Path(source.cities).resolve()
+        digest = cities and hashlib.sha256(cities.read_bytes()).hexdigest()
+        parameters |= {"subset": source.subset, "cities": cities and str(cities), "cities_sha256": digest}
     return parameters
 
 
@@ -561,9 +531,9 @@ def write_manifest(
             "range": {"x_min": options.bev_range.x_min, "x_max": options.bev_range.x_max,
                       "y_min": options.bev_range.y_min, "y_max": options.bev_range.y_max},
             "packages": package_versions(),
-            "rows": {table: io.count_rows(out, table) for table in io.TABLES},
+            "rows": {table: io.count_rows(out, table) for table in io.dataset_tables(dataset)},
             "leakage": summary["leakage"],
-            **({"split_shares": summary["split_shares"]} if "split_shares" in summary else {}),
+            **{key: summary[key] for key in ("split_shares", "frames_without_images") if key in summary},
             "last_run": {key: value for key, value in summary.items() if key not in BESIDE_LAST_RUN},
         },
     )  # fmt: skip
@@ -587,6 +557,8 @@ def prepare(
     geo_cell: float = 100.0,
     geo_buffer: float | None = None,
     geo_seed: int = 0,
+    subset: str | None = None,
+    cities: Path | None = None,
 ) -> dict:
     """Prepare every log of root into out; returns (and prints) a summary. split_files ({split: file of
     log ids, scene names or frames}) replaces the dataset's own splits; logs and frames in no file are left
@@ -598,8 +570,10 @@ def prepare(
     the next run). Without it, logs already done are kept and the folder must have been prepared the same
     way (check_manifest), and a folder that an interrupted --overwrite run left is refused.
     executor: local (this process, or a fork pool of `workers`) or ray (one Ray task per log: a local
-    instance of `workers` CPUs, or the cluster at address, "auto" or HOST:PORT; pipeline/executor.py)."""
-    check_options(options, frame_stride, workers, on_error, executor)
+    instance of `workers` CPUs, or the cluster at address, "auto" or HOST:PORT; pipeline/executor.py).
+    subset, cities: OpenLane-V2's (SourceOptions)."""
+    source = SourceOptions(subset, cities)
+    check_options(options, frame_stride, workers, on_error, executor, dataset, source, split_scheme)
     splits = SplitOptions(split_scheme, split_files, geo_cell, geo_buffer, geo_seed)
     splits.check(options)
     if address and executor != "ray":
@@ -607,12 +581,13 @@ def prepare(
     if executor == "ray":  # before any work: a missing Ray is a one-line error, not a traceback later
         import_ray()
     root, out = Path(root).resolve(), Path(out)
-    parameters = manifest_parameters(options, frame_stride, splits)
+    parameters = manifest_parameters(options, frame_stride, splits, dataset, source)
     if not overwrite:
         check_no_interrupted_overwrite(out)
     check_manifest(out, dataset, root, version, parameters, overwrite)
-    plan = plan_jobs(dataset, root, version, split, frame_stride, splits)
-    run = Run(dataset, root, version, split, options, frame_stride, on_error, workers, executor, address)
+    plan = plan_jobs(dataset, root, version, split, frame_stride, splits, source)
+    run = Run(dataset, root, version, split, options, frame_stride, on_error, workers, executor, address,
+              source)  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     if not overwrite:
         return write_output(out, plan, splits, parameters, run, redo=False)
@@ -644,12 +619,22 @@ class Run:
     workers: int
     executor: str
     address: str | None
+    source: SourceOptions = SourceOptions()
+
+
+def measured_leakage(out: Path, run: Run) -> dict:
+    """The leakage of the whole folder's non-training splits; not measured for OpenLane-V2 frames without
+    --cities (they carry no city, and frames of different cities must not be measured together)."""
+    if run.dataset == "openlanev2" and run.source.cities is None:
+        return {"train_splits": [], "splits": {}, "not_measured": "OpenLane-V2's frame files carry no city; "
+                "give --cities FILE (segment_id or source_id, city) to measure it"}  # fmt: skip
+    return read_and_measure(out, run.options.bev_range)
 
 
 def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, run: Run, redo: bool) -> dict:
     """Prepare the plan's logs into out (those not already done there, or all with `redo`), then its
     errors.jsonl, manifest.json and splits.png; returns the summary."""
-    done = functools.partial(io.shard_done, out)
+    done = functools.partial(io.shard_done, out, tables=io.dataset_tables(run.dataset))
     todo = [job for job in plan.jobs if redo or not all(map(done, job.shards))]
     start = time.perf_counter()
     columns = [
@@ -665,8 +650,11 @@ def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, 
                            run.address, advance)  # fmt: skip
     elapsed = time.perf_counter() - start
     append_errors(out, [e for r in results for e in r.errors])
-    leakage = read_and_measure(out, run.options.bev_range)
+    leakage = measured_leakage(out, run)
     summary = summarize(plan, todo, results, elapsed, leakage)
+    if run.dataset == "openlanev2":  # over the whole folder, as the leakage: what `cli train` refuses
+        missing = io.read_table(out, io.ANNOTATED_LANES, ["images_missing"]).column("images_missing")
+        summary["frames_without_images"] = sum(count > 0 for count in missing.to_pylist())
     write_manifest(out, run.dataset, run.root, run.version, parameters, run.split, run.options, summary)
     cells = plan.geo.cells if plan.geo is not None else None
     draw_dataset_splits(out, out / PICTURE, cells, splits.geo_cell if cells else None)

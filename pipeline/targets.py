@@ -74,7 +74,11 @@ def warm_up() -> None:
 
 
 def frame_targets(lane_map: LaneMap, ego_to_world: np.ndarray, options: TargetOptions) -> FrameTargets:
-    graph = crop_lane_graph(lane_map, rigid_inverse(ego_to_world), options.bev_range)
+    return graph_targets(crop_lane_graph(lane_map, rigid_inverse(ego_to_world), options.bev_range), options)
+
+
+def graph_targets(graph: LaneGraph, options: TargetOptions) -> FrameTargets:
+    """The targets of a frame's cropped lane graph (a map's, or OpenLane-V2's annotated lanes')."""
     pieces = graph_to_pieces(graph)
     paths = pieces_to_paths(pieces, len(graph.x), options.max_paths)
     path_points, path_lengths = resample(paths.vertex_ids, graph, options.path_points)

@@ -344,6 +344,8 @@ def leakage_line(leakage: dict | None, scheme: str | None) -> str:
     head = f"split scheme {scheme or UNKNOWN}"
     if leakage is None:
         return f"{head}; leakage not measured (prepared before leakage was recorded)"
+    if leakage.get("not_measured"):  # OpenLane-V2 without --cities: no city to measure within
+        return f"{head}; leakage not measured: {leakage['not_measured']}"
     if leakage.get("note") or not leakage.get("train_splits"):
         return f"{head}; leakage: not measured (no training frames)"
     splits = leakage.get("splits") or {}

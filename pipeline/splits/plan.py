@@ -1,5 +1,6 @@
-"""Which split each frame is prepared into: the dataset's own, split files (log or scene names, or frames:
-frame ids, nuScenes sample tokens, AV2 `<log>_<timestamp_ns>`), or the geographic scheme (geographic.py)."""
+"""Which split each frame is prepared into: the dataset's own, split files (log, scene or segment names, or
+frames: frame ids, nuScenes sample tokens, AV2 `<log>_<timestamp_ns>`), or the geographic scheme
+(geographic.py)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ SCHEMES = ("original", "geographic")
 # frame lines of a log that is here but that name none of its frames: beyond this many, a format slip (a
 # timestamp in microseconds, another dataset's ids) rather than a few frames missing
 MAX_UNMATCHED = 5
-FRAME_ID = re.compile(r"(?:av2|nuscenes)/([^/\s]+)/(\d+)")
+FRAME_ID = re.compile(r"(?:av2|nuscenes|openlanev2)/([^/\s]+)/(\d+)")
 AV2_FRAME = re.compile(r"([0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12})_(\d+)")
 SAMPLE_TOKEN = re.compile(r"[0-9a-f]{32}")
 

@@ -54,8 +54,8 @@ def assert_row_equals(parsed: dict, row: dict) -> None:
 def test_every_table_renders_and_reads_back_to_the_data_file():
     tables = load_reference()
     assert set(tables) == {"tab:modeling", "tab:iou", "tab:postproc", "tab:bevseg", "tab:polyline",
-                           "tab:bezier", "tab:perception_range", "tab:newsplit", "tab:modality",
-                           "tab:schedule"}  # fmt: skip
+                           "tab:bezier", "tab:perception_range", "tab:newsplit", "tab:toponet",
+                           "tab:modality", "tab:schedule"}  # fmt: skip
     for label, table in tables.items():
         header, rows = reference_table(table, table.rows)
         assert header[0] == "reference" and len(rows) == len(table.rows)

@@ -7,9 +7,12 @@ of their own, never bolded, ranked or averaged with measured rows.
 
 from __future__ import annotations
 
+from collections import Counter
+from pathlib import Path
+
 from benchmark.report.measured_tables import FIELD_NAMES, METRICS, MODES, SHORT, STATS, markdown_table
-from benchmark.report.reference import SCORE_KEYS, ReferenceTable
-from benchmark.report.runs import Block, SplitKind, percent
+from benchmark.report.reference import DATASET_NAMES, SCORE_KEYS, ReferenceTable
+from benchmark.report.runs import Block, Run, SplitKind, percent
 
 REFERENCE_NOTE = (
     "Tables headed *Reference* hold the paper's published numbers (benchmark/report/paper_reference.toml, "
@@ -25,12 +28,34 @@ UNKNOWN_ORIGIN_NOTE = (
     "Whether these runs are on synthetic data is unknown: the raw data their dataset's manifest names is "
     "gone. The paper's rows are context, not a like-for-like comparison."
 )
+OPENLANEV2 = "openlanev2"  # the manifest's dataset of OpenLane-V2 data (`cli prepare --dataset openlanev2`)
+OPENLANEV2_TABLE = "tab:toponet"  # the paper's OpenLane-V2 table, shown in a section of its own
+OPENLANEV2_NOTE = (
+    "The paper compares on OpenLane-V2 by mIoU alone, at OpenLane-V2's 50 x 100 m range: its starred rows "
+    "are the TopoNet paper's numbers, its LaneGAP row a variant of TopoNet that learns paths. Beside them, "
+    "the runs here that were scored on OpenLane-V2 data (`cli prepare --dataset openlanev2`) at that range, "
+    "their mIoU as the block's mIoU table reads it from metrics.json: this project's mIoU (docs/METRICS.md, "
+    "both graphs drawn on the BEV grid), the paper's rows TopoNet's, so alike in kind, not proven equal. "
+    "OpenLane-V2 runs stand in no nuScenes or AV2 table, and the paper's nuScenes and AV2 tables beside no "
+    "OpenLane-V2 block."
+)
+OPENLANEV2_SYNTHETIC_NOTE = (
+    "A run on synthetic OpenLane-V2 data (`cli synth`) is on worlds of its own: the paper's rows are context "
+    "for it, not a like-for-like comparison."
+)
+OPENLANEV2_BLOCK_NOTE = (
+    "The paper's nuScenes and AV2 tables stand beside no OpenLane-V2 block: its OpenLane-V2 table "
+    "(`tab:toponet`, mIoU at 50 x 100 m) is in the section *OpenLane-V2* below, with the runs here measured "
+    "at that range."
+)
 # where each paper table is shown, for the list of those no measured table matched
 REFERENCE_PLACES = {
     "tab:modeling": "under a dataset block of nuScenes or AV2 at 30 x 60 m on its own split",
     "tab:iou": "beside the mIoU table of a nuScenes or AV2 block at 30 x 60 m on its own split",
     "tab:postproc": "beside the post-processing accuracy of `--roundtrip` results",
     "tab:perception_range": "under a dataset block of nuScenes prepared at 50 x 100 m on its own split",
+    OPENLANEV2_TABLE: "in a section of its own when a run is on OpenLane-V2 data (`cli prepare --dataset "
+    "openlanev2`), beside those runs measured at 50 x 100 m",
     "tab:newsplit": "under a dataset block of nuScenes at 30 x 60 m prepared with StreamMapNet's split files "
     "(`--split-file train=... --split-file val=...`)",
 }
@@ -95,6 +120,8 @@ def main_references(block: Block, refs: dict[str, ReferenceTable]) -> list[tuple
     30 x 60 m; on any other split (the geographic scheme's, the user's split files) none."""
     bev_range, kind = block.parameters.get("bev_range"), block.data_split.kind
     labels = []
+    if block.dataset == OPENLANEV2:  # the paper's OpenLane-V2 table has its own section
+        return []
     if kind is SplitKind.ORIGINAL:
         labels = ["tab:perception_range"] if bev_range == "50x100" else []
         labels += ["tab:modeling"] if bev_range == "30x60" else []
@@ -106,8 +133,8 @@ def main_references(block: Block, refs: dict[str, ReferenceTable]) -> list[tuple
 
 def ablation_references(block: Block, refs: dict[str, ReferenceTable], name: str) -> list[ReferenceTable]:
     """The paper's ablations of config field `name` (each on a dataset's own split), for a block whose
-    data is on its own split; none for another split."""
-    if block.data_split.kind is not SplitKind.ORIGINAL:
+    data is on its own split; none for another split or OpenLane-V2 data (the paper's are on nuScenes)."""
+    if block.data_split.kind is not SplitKind.ORIGINAL or block.dataset == OPENLANEV2:
         return []
     return [table for table in refs.values() if table.field == name]
 
@@ -132,3 +159,74 @@ def unplaced_references(refs: dict[str, ReferenceTable], placed: set[str]) -> li
             where = REFERENCE_PLACES.get(label, "beside a matching measured table")
         lines.append(f"- `{label}`, {table.title}: shown {where}.")
     return lines
+
+
+def openlanev2_runs(blocks: list[Block], bev_range: str) -> tuple[list[tuple[Block, Run]], list[str]]:
+    """The runs beside the paper's OpenLane-V2 table: those scored on OpenLane-V2 data at its range
+    (`bev_range`) with an mIoU, with their blocks; and a line for each reason the others are left out,
+    with how many."""
+    kept: list[tuple[Block, Run]] = []
+    other_data, ranges = Counter(), Counter()
+    unscored, no_miou = [], []
+    for block in blocks:
+        for run in block.runs:
+            if block.dataset != OPENLANEV2:
+                other_data[DATASET_NAMES.get(block.dataset, block.dataset)] += 1
+            elif not run.scored:
+                unscored.append(run.name)
+            elif run.bev_range != bev_range:
+                ranges[range_words(run.bev_range)] += 1
+            elif run.metrics.get("miou") is None:
+                no_miou.append(run.name)
+            else:
+                kept.append((block, run))
+    paper = range_words(bev_range)
+    lines = []
+    if ranges:
+        at = ", ".join(f"{count} at {words}" for words, count in ranges.items())
+        lines.append(f"Left out: {runs_count(ranges.total())} on OpenLane-V2 data measured at another range "
+                     f"({at}), not at the paper's {paper} (`cli prepare --dataset openlanev2 --range "
+                     f"{bev_range}`).")  # fmt: skip
+    if other_data:
+        on = ", ".join(f"{name} {count}" for name, count in other_data.items())
+        lines.append(f"Left out: {runs_count(other_data.total())} on other data ({on}): the paper's table "
+                     "is on OpenLane-V2.")  # fmt: skip
+    if unscored:
+        lines.append(f"Left out: {runs_count(len(unscored))} on OpenLane-V2 data without scores "
+                     f"({', '.join(unscored)}).")  # fmt: skip
+    if no_miou:
+        lines.append(f"Left out: {runs_count(len(no_miou))} on OpenLane-V2 data whose metrics.json holds no "
+                     f"mIoU ({', '.join(no_miou)}).")  # fmt: skip
+    return kept, lines
+
+
+def runs_count(count: int) -> str:
+    return f"{count} run" if count == 1 else f"{count} runs"
+
+
+def range_words(bev_range: str | None) -> str:
+    """A range as the report writes it: "50 x 100 m"; "an unknown range" for None."""
+    if not bev_range:
+        return "an unknown range"
+    width, length = bev_range.split("x")
+    return f"{width} x {length} m"
+
+
+def openlanev2_data(block: Block) -> str:
+    """Which OpenLane-V2 data a block's runs ran on: "ours, synthetic OpenLane-V2 (`cli synth`)", or
+    the raw root's folder name, as its manifest names it."""
+    if block.synthetic:
+        return "ours, synthetic OpenLane-V2 (`cli synth`)"
+    root = block.manifest.get("root")
+    name = f"OpenLane-V2 `{Path(root).name}`" if root else "OpenLane-V2 (root not recorded)"
+    return f"ours, {name}" + (" (its raw data is gone)" if block.synthetic is None and root else "")
+
+
+def openlanev2_table(kept: list[tuple[Block, Run]]) -> tuple[list[str], list[list[str]]]:
+    """Our runs beside the paper's OpenLane-V2 table: the data each ran on, and its mIoU in %."""
+    rows = [
+        [openlanev2_data(block), run.name, run.method, run.modality, block.split_words,
+         str(run.metrics["frames"]), percent(run.metrics["miou"])]
+        for block, run in kept
+    ]  # fmt: skip
+    return ["data", "run", "method", "modality", "split", "frames", "mIoU"], rows

@@ -25,7 +25,7 @@ SCORE_KEYS = {
     ("undirected", "junction_topo"): "undir_jtopo",
     ("undirected", "topo"): "undir_topo",
 }
-DATASET_NAMES = {"nuscenes": "nuScenes", "av2": "AV2"}
+DATASET_NAMES = {"nuscenes": "nuScenes", "av2": "AV2", "openlanev2": "OpenLane-V2"}
 
 
 @dataclass
@@ -48,7 +48,7 @@ class ReferenceTable:
         return row.get("dataset", self.meta.get("dataset"))
 
     def row_label(self, row: dict) -> str:
-        """Where the row comes from: the paper's table, schedule and the GPU of its FPS."""
+        """Where the row comes from: the paper's table, schedule, the GPU of its FPS and its origin."""
         parts = [f"paper `{self.label}`"]
         schedule = self.meta.get("schedule")
         if isinstance(schedule, dict):
@@ -57,6 +57,8 @@ class ReferenceTable:
             parts.append(schedule)
         if self.meta.get("fps_on") and ("fps" in row or "fps_net" in row):
             parts.append(f"FPS on {self.meta['fps_on']}")
+        if row.get("origin"):  # a number the paper took from another paper, or a variant it measured
+            parts.append(row["origin"])
         return ", ".join(parts)
 
     def describe(self, dataset: str | None = None) -> str:

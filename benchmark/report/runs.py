@@ -29,6 +29,8 @@ MEASURED = ("params", "fps_net", "fps")  # null only in an external run's metric
 # an external run (`cli score --out RUN_DIR`: another codebase's result file, metrics.json's "external")
 EXTERNAL_NAMES = {"maptrv2": "MapTRv2 / LaneGAP JSON", "cgnet": "CGNet JSON", "graph": "graph table"}
 VALIDATION_FILE = "val.jsonl"
+# the raw roots that `cli synth` writes, as its marker (pipeline.synth.MARKER) names them
+SYNTH_ROOTS = ("av2_root", "nuscenes_root", "openlanev2_root")
 # StreamMapNet's geographically disjoint splits (Yuan et al., WACV 2024), the paper's new split: sha256 of
 # each file's names, sorted and joined by newlines (`split_names_digest`), so that a copy in another order
 # or with comments is told as theirs; from nusc_split.py and av2_{train,val}_split.txt of their repository
@@ -170,6 +172,12 @@ class Run:
         if self.external is not None:
             return "unknown"
         return (self.config or {}).get("encoder", {}).get("modality", "-")
+
+    @property
+    def bev_range(self) -> str | None:
+        """The range its scores were measured at (metrics.json's metric parameters, WIDTHxLENGTH m); None
+        without scores."""
+        return ((self.metrics or {}).get("metric_params") or {}).get("bev_range")
 
     def score(self, mode: str, metric: str, stat: str = "f1") -> float:
         return float(self.metrics[mode][metric][stat])
@@ -326,7 +334,7 @@ def is_synthetic(manifest: dict) -> bool | None:
                 marker = json.loads((folder / MARKER).read_text())
             except json.JSONDecodeError:
                 continue
-            roots = [marker.get(key) for key in ("av2_root", "nuscenes_root")]
+            roots = [marker.get(key) for key in SYNTH_ROOTS]
             if any(r and (folder / r).resolve() == root for r in roots):
                 return True
     return False

@@ -37,12 +37,20 @@ from benchmark.report.measured_tables import (
     short_id,
 )
 from benchmark.report.paper_tables import (
+    OPENLANEV2,
+    OPENLANEV2_BLOCK_NOTE,
+    OPENLANEV2_NOTE,
+    OPENLANEV2_SYNTHETIC_NOTE,
+    OPENLANEV2_TABLE,
     REFERENCE_NOTE,
     SYNTHETIC_NOTE,
     UNKNOWN_ORIGIN_NOTE,
     ablation_references,
     console_reference,
     main_references,
+    openlanev2_runs,
+    openlanev2_table,
+    range_words,
     reference_section,
     split_note,
     unplaced_references,
@@ -149,6 +157,8 @@ def main_section(block: Block, beside: list[tuple[ReferenceTable, list[dict]]], 
     note = split_note(block) if refs else None  # on another split than the paper's: no paper rows
     if refs and note:
         md += [note, ""]
+    elif refs and block.dataset == OPENLANEV2:
+        md += [OPENLANEV2_BLOCK_NOTE, ""]
     elif refs:
         if block.synthetic:
             md += [SYNTHETIC_NOTE, ""]
@@ -290,6 +300,28 @@ def roundtrip_section(
         md += reference_section(doc.refs["tab:postproc"], doc.refs["tab:postproc"].rows)
         doc.placed.add("tab:postproc")
     return md
+
+
+def openlanev2_section(blocks: list[Block], doc: Sections) -> list[str]:
+    """The paper's OpenLane-V2 table (`tab:toponet`) in a section of its own, with the runs measured on
+    OpenLane-V2 data at its range beside it and a line for each reason others are left out; none without
+    `--reference paper` or without a run on OpenLane-V2 data."""
+    table = doc.refs.get(OPENLANEV2_TABLE)
+    if table is None or not any(block.dataset == OPENLANEV2 for block in blocks):
+        return []
+    doc.placed.add(table.label)
+    bev_range = table.meta["range"]
+    md = ["## OpenLane-V2 (the paper's `tab:toponet`)", "", OPENLANEV2_NOTE, ""]
+    md += reference_section(table, table.rows)
+    kept, left_out = openlanev2_runs(blocks, bev_range)
+    md += [f"#### Ours: runs on OpenLane-V2 data at {range_words(bev_range)} (`--range {bev_range}`)", ""]
+    if kept:
+        md += [markdown_table(*openlanev2_table(kept)), ""]
+        if any(block.synthetic for block, _ in kept):
+            md += [OPENLANEV2_SYNTHETIC_NOTE, ""]
+    else:
+        md += [f"No run here was scored on OpenLane-V2 data at {range_words(bev_range)}.", ""]
+    return md + [f"- {line}" for line in left_out] + ([""] if left_out else [])
 
 
 def unplaced_section(doc: Sections) -> list[str]:

@@ -29,6 +29,7 @@ from benchmark.report.sections import (
     block_sections,
     introduction,
     loss_section,
+    openlanev2_section,
     roundtrip_section,
     unplaced_section,
     validation_section,
@@ -68,6 +69,7 @@ def write_report(
     for index, block in enumerate(blocks, 1):
         md += block_sections(index, block, doc)
     md += roundtrip_section(trip_tables, doc)
+    md += openlanev2_section(blocks, doc)
     md += unplaced_section(doc)
     md += loss_section(blocks, doc)
     md += validation_section(blocks, doc)

@@ -1,7 +1,9 @@
 """The `openlanev2` metric variant: OpenLane-V2's DET_l and TOP_ll (v1.1+) of lane graphs cut into lanes at
 their junctions (lanes_of), one frame's contribution (openlanev2_frame) and the scores (openlanev2_result),
 under OpenLaneV2Params (params.py, with OPENLANEV2_VERSION: the table of metrics names them
-without loading this module)."""
+without loading this module). On OpenLane-V2's own data, its lane path: the annotated lanes against a
+submission's lanes or a graph's (annotated_of_graph), as OpenLane-V2's code scores them
+(openlanev2_lanes_frame)."""
 
 from __future__ import annotations
 
@@ -12,10 +14,11 @@ import numpy as np
 
 from benchmark.metric.densify import identical_points, unique_edges
 from benchmark.metric.params import OPENLANEV2_VERSION, OpenLaneV2Params
-from pipeline.geometry import Range, resample_polylines
+from pipeline.geometry import Range, ground_height, resample_polylines
 from pipeline.kernels import kernel
-from pipeline.lane_graph import LaneGraph
+from pipeline.lane_graph import BEV_FROM_OPENLANEV2_EGO, LaneGraph
 from pipeline.pieces import graph_to_pieces
+from pipeline.records import AnnotatedLanes
 
 # The definition, as OpenLane-V2's `openlanev2/centerline/evaluation/` computes it (docs/METRICS.md says where
 # it differs from our TOPO):
@@ -147,43 +150,105 @@ def relaxation(gt: Lanes, params: OpenLaneV2Params) -> np.ndarray:
 
 
 @kernel
-def _point_distance(a, b):
-    dx, dy = a[0] - b[0], a[1] - b[1]
-    return np.sqrt(dx * dx + dy * dy)
+def _point_distance(a, i, b, j):
+    """The Euclidean distance of points a[i] and b[j], their squared differences summed in coordinate order
+    (as scipy's cdist sums them)."""
+    total = 0.0
+    for k in range(a.shape[1]):
+        d = a[i, k] - b[j, k]
+        total += d * d
+    return np.sqrt(total)
 
 
 @kernel
-def nearest_lanes(gt, pred, factor, bound):
-    """For each predicted lane, the GT lane at the smallest relaxed discrete Fréchet distance (the first
-    on ties) and that distance; (-1, inf) when none is below `bound`.
+def _numpy_sum(values):
+    """values' sum as numpy's add.reduce sums a float64 array (its pairwise summation), so that a mean equals
+    numpy's to the last bit."""
+    n = len(values)
+    if n < 8:
+        total = 0.0
+        for i in range(n):
+            total += values[i]
+        return total
+    if n <= 128:
+        r = values[:8].copy()
+        i = 8
+        while i < n - n % 8:
+            for k in range(8):
+                r[k] += values[i + k]
+            i += 8
+        total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+        while i < n:
+            total += values[i]
+            i += 1
+        return total
+    half = n // 2
+    half -= half % 8
+    return _numpy_sum(values[:half]) + _numpy_sum(values[half:])
+
+
+@kernel
+def _chamfer(gt, g0, g1, pred, p0, p1):
+    """The reference's chamfer_distance of GT points gt[g0:g1] and predicted points pred[p0:p1]: the mean of
+    (the mean over predicted points of the nearest GT point, the same over GT points); a GT lane that ends
+    where it starts drops its last point (a lane of one point keeps it: there the reference fails)."""
+    closed = True
+    for k in range(gt.shape[1]):
+        closed = closed and gt[g0, k] == gt[g1 - 1, k]
+    if closed and g1 - g0 > 1:
+        g1 -= 1
+    to_gt = np.empty(p1 - p0)
+    to_pred = np.full(g1 - g0, np.inf)
+    for i in range(p0, p1):
+        nearest = np.inf
+        for j in range(g0, g1):
+            d = _point_distance(pred, i, gt, j)
+            nearest = min(nearest, d)
+            to_pred[j - g0] = min(to_pred[j - g0], d)
+        to_gt[i - p0] = nearest
+    return (_numpy_sum(to_gt) / len(to_gt) + _numpy_sum(to_pred) / len(to_pred)) / 2
+
+
+@kernel
+def nearest_lanes(gt, gt_start, pred, pred_start, factor, bound, chamfer_mask):
+    """For each predicted lane (pred[pred_start[p]:pred_start[p + 1]], points of any dimension), the GT lane
+    (gt[gt_start[g]:gt_start[g + 1]]) at the smallest relaxed discrete Fréchet distance (the first on ties)
+    and that distance; (-1, inf) when none is below `bound`. `chamfer_mask`: a pair whose relaxed Chamfer
+    distance is not below `bound` is no candidate, as the reference's mask makes it (its 1024 fill).
 
     Pairs that cannot come below `bound` or the best so far are cut short, without changing the answer:
     the distance is at least that of the two first points and of the two last points (any coupling
     pairs them), and at least the smallest value of each row of the dynamic programme (any coupling
     crosses every row).
     """
-    n_pred, n_points = pred.shape[0], pred.shape[1]
+    n_pred = len(pred_start) - 1
     nearest = np.full(n_pred, -1, np.int64)
     best = np.full(n_pred, np.inf)
-    row = np.empty(gt.shape[1])
+    longest = 1
+    for g in range(len(gt_start) - 1):
+        longest = max(longest, gt_start[g + 1] - gt_start[g])
+    row = np.empty(longest)
     for p in range(n_pred):
-        for g in range(gt.shape[0]):
+        p0, p1 = pred_start[p], pred_start[p + 1]
+        for g in range(len(gt_start) - 1):
+            g0, g1 = gt_start[g], gt_start[g + 1]
+            m = g1 - g0
             limit = min(bound, best[p])
-            ends = max(_point_distance(pred[p, 0], gt[g, 0]), _point_distance(pred[p, -1], gt[g, -1]))
+            ends = max(_point_distance(pred, p0, gt, g0), _point_distance(pred, p1 - 1, gt, g1 - 1))
             if ends * factor[g] >= limit:
                 continue
             # discrete Fréchet (Eiter and Mannila): row i of ca[i, j] = max(min(three before), d(i, j))
-            row[0] = _point_distance(pred[p, 0], gt[g, 0])
-            for j in range(1, gt.shape[1]):
-                row[j] = max(row[j - 1], _point_distance(pred[p, 0], gt[g, j]))
+            row[0] = _point_distance(pred, p0, gt, g0)
+            for j in range(1, m):
+                row[j] = max(row[j - 1], _point_distance(pred, p0, gt, g0 + j))
             cut = False
-            for i in range(1, n_points):
+            for i in range(p0 + 1, p1):
                 diagonal = row[0]
-                row[0] = max(row[0], _point_distance(pred[p, i], gt[g, 0]))
+                row[0] = max(row[0], _point_distance(pred, i, gt, g0))
                 smallest = row[0]
-                for j in range(1, gt.shape[1]):
+                for j in range(1, m):
                     up = row[j]
-                    row[j] = max(min(up, row[j - 1], diagonal), _point_distance(pred[p, i], gt[g, j]))
+                    row[j] = max(min(up, row[j - 1], diagonal), _point_distance(pred, i, gt, g0 + j))
                     diagonal = up
                     smallest = min(smallest, row[j])
                 if smallest * factor[g] >= limit:
@@ -191,8 +256,14 @@ def nearest_lanes(gt, pred, factor, bound):
                     break
             if cut:
                 continue
-            distance = row[gt.shape[1] - 1] * factor[g]
+            distance = row[m - 1] * factor[g]
             if distance < best[p]:
+                if (
+                    chamfer_mask
+                    and distance < bound
+                    and _chamfer(gt, g0, g1, pred, p0, p1) * factor[g] >= bound
+                ):
+                    continue
                 best[p], nearest[p] = distance, g
     return nearest, best
 
@@ -213,10 +284,12 @@ def greedy_match(order, nearest, best, threshold, n_gt):
 
 
 @kernel
-def lane_aps(truth, confidence, threshold, grouped):
+def lane_aps(truth, confidence, threshold, grouped, float32):
     """Each row's AP: the columns with `truth` against those with `confidence` above `threshold`, ranked
     by decreasing confidence (ties in column order): the sum of the precision at each true one over
-    their number; 1 when both are empty, 0 when one is. `grouped`: a tie is read where it ends."""
+    their number; 1 when both are empty, 0 when one is. `grouped`: a tie is read where it ends.
+    `float32`: as the reference computes it, each precision a float32 quotient, their sum rounded to
+    float32 (numpy's dot of float32 vectors: a double sum, rounded), divided by the number in float64."""
     out = np.empty(truth.shape[0])
     for i in range(truth.shape[0]):
         n_true = 0
@@ -232,20 +305,32 @@ def lane_aps(truth, confidence, threshold, grouped):
         for k in range(len(order)):
             hit = truth[i, picked[order[k]]]
             hits += hit
+            precision = hits / (k + 1)
+            if float32:
+                precision = np.float64(np.float32(hits) / np.float32(k + 1))
             if not grouped:
                 if hit:
-                    total += hits / (k + 1)
+                    total += precision
                 continue
             pending += hit
             if k + 1 == len(order) or score[order[k + 1]] != score[order[k]]:
-                total += pending * (hits / (k + 1))
+                total += pending * precision
                 pending = 0
+        if float32:
+            total = np.float64(np.float32(total))
         out[i] = total / n_true
     return out
 
 
 # ---------------------------------------------------------------------------------------------------
 # A frame and a set of frames
+
+
+def _flat(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lanes of equal length (L, n, d) as nearest_lanes takes them: their points in one (L * n, d) array
+    and where each lane starts."""
+    lanes, n, dims = points.shape
+    return np.ascontiguousarray(points.reshape(lanes * n, dims)), np.arange(lanes + 1, dtype=np.int64) * n
 
 
 def openlanev2_frame(
@@ -256,7 +341,9 @@ def openlanev2_frame(
     frame has no GT lane). `pred_scores`: one score per edge of `pred` (lanes_of), else confidences 1.0."""
     params = params or OpenLaneV2Params()
     p, g = lanes_of(pred, params.points, pred_scores), lanes_of(gt, params.points)
-    nearest, best = nearest_lanes(g.points, p.points, relaxation(g, params), max(params.thresholds))
+    nearest, best = nearest_lanes(
+        *_flat(g.points), *_flat(p.points), relaxation(g, params), max(params.thresholds), False
+    )
     order = np.argsort(-p.confidence, kind="stable")
     truth = g.adjacency.astype(np.int64)
     grouped = params.ties == "threshold"
@@ -270,9 +357,13 @@ def openlanev2_frame(
         carried = (1.0 - g.adjacency) * UNCOVERED_CONFIDENCE
         matched = np.flatnonzero(match >= 0)
         carried[np.ix_(match[matched], match[matched])] = p.adjacency[np.ix_(matched, matched)]
-        aps[k, : g.n] = lane_aps(truth, carried, RELATIONSHIP_THRESHOLD, grouped)
+        aps[k, : g.n] = lane_aps(truth, carried, RELATIONSHIP_THRESHOLD, grouped, False)
         aps[k, g.n :] = lane_aps(
-            np.ascontiguousarray(truth.T), np.ascontiguousarray(carried.T), RELATIONSHIP_THRESHOLD, grouped
+            np.ascontiguousarray(truth.T),
+            np.ascontiguousarray(carried.T),
+            RELATIONSHIP_THRESHOLD,
+            grouped,
+            False,
         )
     return {
         "n_gt": g.n,
@@ -315,11 +406,20 @@ def _range_text(bev_range: str) -> str:
 
 
 def openlanev2_result(frames: list[dict]) -> dict:
-    """DET_l and TOP_ll over the frames (openlanev2_frame's dicts, in frame order), JSON-able."""
+    """DET_l and TOP_ll over the frames (openlanev2_frame's or openlanev2_lanes_frame's dicts, in frame
+    order), JSON-able."""
     params = [f["params"] for f in frames]
     if any(p != params[0] for p in params):
         raise ValueError("the frames were computed with different OpenLaneV2Params")
     params = OpenLaneV2Params.from_dict(params[0]) if params else OpenLaneV2Params()
+    lane_path = [bool(f.get("lane_path")) for f in frames]
+    if any(lane_path):
+        if not all(lane_path):
+            raise ValueError(
+                f"{lane_path.count(False)} of {len(frames)} frames have no OpenLane-V2 annotated lanes: "
+                "OpenLane-V2's own lanes and lanes cut from graphs are not scored together"
+            )
+        return _lanes_result(frames, params)
     grouped = params.ties == "threshold"
     confidence = np.concatenate([f["confidence"] for f in frames] or [np.zeros(0)])
     n_gt = sum(f["n_gt"] for f in frames)
@@ -362,3 +462,207 @@ def _note(confidence: np.ndarray, grouped: bool) -> str | None:
             "times recall), not the area under a ranked curve"
         )
     return "every lane's confidence is 1.0: ties are walked in lane order, so DET_l depends on that order"
+
+
+# ---------------------------------------------------------------------------------------------------
+# The lane path: OpenLane-V2's own lanes, as its evaluation code scores them
+#
+# Where the lane path follows the reference rather than the graph path above:
+# - GT lanes are the annotated lanes as OpenLane-V2's val and test collections hold them (preprocess.py's
+#   collect with point_interval 20: every 20th point, the first kept, as float32; its 201-point lanes
+#   become 11 points). Predicted lanes are taken as they are: any number of points, no resampling.
+# - The distance is the discrete Fréchet distance in 3D (similaritymeasures' frechet_dist), relaxed by the
+#   GT lane's 3D distance to the ego (scipy's float32 norm of its float32 points), and a pair counts only
+#   if its relaxed Chamfer distance is below the largest threshold too (the reference's mask).
+# - DET_l in float32 as there: float32 precision and recall, the recall steps compared in float32 (numpy
+#   1.23, its pinned version, casts the step to the recall's dtype: a recall of exactly 0.7 reaches its
+#   step), the 11 precisions summed in float32, the thresholds' APs averaged in float32.
+# - TOP_ll: each lane's AP from float32 precisions (lane_aps' float32), the mean over all of them taken
+#   by numpy in the reference's order, in float32 when every AP is a plain 0 or 1 (no ranked AP), as
+#   numpy's hstack of the reference's mixed scalars gives it.
+
+REFERENCE = (
+    "OpenDriveLab/OpenLane-V2 v2.1.0 (evaluation code unchanged to f085b3d): "
+    "openlanev2/centerline/evaluation/evaluate.py's DET_l and TOP_ll on the GT of its preprocess.py's "
+    "val/test collections, under its numpy 1.23"
+)
+# preprocess.py collects the val and test splits with point_interval = 20 (its train split keeps every point)
+GT_POINT_INTERVAL = 20
+EGO_FROM_BEV = np.linalg.inv(BEV_FROM_OPENLANEV2_EGO)
+NOT_COMPUTED = "DET_t, TOP_lt and the OpenLane-V2 Score (OLS) are not computed: traffic elements are not read"
+FROM_SUBMISSION = "the submission's lanes as they are (3D points, confidences, topology_lclc probabilities)"
+FROM_GRAPH = "the predicted graph cut into lanes at its junctions, heights from the ground plane, links 1.0"
+EPS32 = np.finfo(np.float32).eps
+
+
+def annotated_of_graph(
+    graph: LaneGraph, ground: tuple | None, scores=None, points: int = 11
+) -> AnnotatedLanes:
+    """A BEV lane graph as OpenLane-V2 lanes: its lanes as lanes_of cuts them (pieces between junctions,
+    `points` points each, confidences from `scores` per edge, else 1.0), in OpenLane-V2's ego frame (x
+    forward, y left, z up), heights from the ground plane `ground` (ground_z, a, b: z = ground_z + a x + b y
+    in the BEV frame; None: z = 0), links 1.0 where lane j starts where lane i ends."""
+    lanes = lanes_of(graph, points, scores)
+    x, y = lanes.points[..., 0], lanes.points[..., 1]
+    z = np.zeros_like(x) if ground is None else ground_height(x, y, ground[0], (ground[1], ground[2]))
+    bev = np.stack([x, y, z], axis=-1)
+    ego = bev @ EGO_FROM_BEV[:3, :3].T
+    return AnnotatedLanes(
+        points=[np.ascontiguousarray(lane) for lane in ego],
+        links=lanes.adjacency,
+        ids=[str(i) for i in range(lanes.n)],
+        confidence=lanes.confidence,
+    )
+
+
+def evaluated_gt_points(lanes: AnnotatedLanes) -> list[np.ndarray]:
+    """The GT lanes' points as the reference evaluates them: every GT_POINT_INTERVAL-th annotated point, the
+    first kept, rounded to float32 (held in float64)."""
+    return [np.asarray(p)[::GT_POINT_INTERVAL].astype(np.float32).astype(np.float64) for p in lanes.points]
+
+
+def relaxation_3d(gt_points: list[np.ndarray], params: OpenLaneV2Params) -> np.ndarray:
+    """Each GT lane's factor on its distances, as the reference's pairwise(relax=True):
+    max(relax_floor, 1 - relax_rate * d), d the 3D distance of its point nearest to the ego, each point's
+    norm rounded to float32 as scipy's euclidean gives it for float32 points."""
+    out = np.empty(len(gt_points))
+    for i, p in enumerate(gt_points):
+        norm = np.sqrt(p[:, 0] * p[:, 0] + p[:, 1] * p[:, 1] + p[:, 2] * p[:, 2]).astype(np.float32)
+        out[i] = max(params.relax_floor, 1.0 - params.relax_rate * float(norm.min()))
+    return out
+
+
+def _stacked(lanes: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Lanes of any lengths as nearest_lanes takes them: all their points and where each lane starts."""
+    start = np.zeros(len(lanes) + 1, np.int64)
+    start[1:] = np.cumsum([len(p) for p in lanes])
+    points = np.concatenate(lanes) if lanes else np.zeros((0, 3))
+    return np.ascontiguousarray(points, np.float64), start
+
+
+def openlanev2_lanes_frame(
+    pred: AnnotatedLanes,
+    gt: AnnotatedLanes,
+    params: OpenLaneV2Params | None = None,
+    source: str = FROM_SUBMISSION,
+    scored: bool | None = None,
+) -> dict:
+    """What one frame contributes on the lane path (picklable): OpenLane-V2's annotated lanes `gt` against
+    the predicted lanes `pred` (a submission's, or annotated_of_graph's), per threshold each prediction's
+    true-positive flag with its confidence (DET_l) and the AP of each GT lane's successors and predecessors
+    (TOP_ll), as the reference computes them. `source` says where the predicted lanes come from; `scored`
+    whether their confidences are scores (None: whether `pred` has confidences; without, each is 1.0)."""
+    params = params or OpenLaneV2Params()
+    gt_points = evaluated_gt_points(gt)
+    n_gt, n_pred = len(gt_points), len(pred)
+    confidence = np.ones(n_pred) if pred.confidence is None else np.asarray(pred.confidence, np.float64)
+    pred_links = np.asarray(pred.links, np.float64).reshape(n_pred, n_pred)
+    truth = (np.asarray(gt.links).reshape(n_gt, n_gt) != 0).astype(np.int64)
+    bound = max(params.thresholds)
+    nearest, best = nearest_lanes(
+        *_stacked(gt_points), *_stacked([np.asarray(p, np.float64) for p in pred.points]),
+        relaxation_3d(gt_points, params), bound, True,
+    )  # fmt: skip
+    order = np.argsort(-confidence, kind="stable")
+    grouped = params.ties == "threshold"
+    tp = np.zeros((len(params.thresholds), n_pred), bool)
+    aps = np.zeros((len(params.thresholds), 2 * n_gt))
+    ranked = np.zeros((len(params.thresholds), 2 * n_gt), bool)
+    for k, threshold in enumerate(params.thresholds):
+        tp[k], match = greedy_match(order, nearest, best, threshold, n_gt)
+        if not n_gt:
+            continue
+        carried = (1.0 - truth) * UNCOVERED_CONFIDENCE
+        matched = np.flatnonzero(match >= 0)
+        carried[np.ix_(match[matched], match[matched])] = pred_links[np.ix_(matched, matched)]
+        for side, (t, c) in enumerate(((truth, carried), (truth.T, carried.T))):
+            t, c = np.ascontiguousarray(t), np.ascontiguousarray(c)
+            aps[k, side * n_gt : (side + 1) * n_gt] = lane_aps(t, c, RELATIONSHIP_THRESHOLD, grouped, True)
+            # an AP the reference ranks (a float64 there) rather than returns as a plain float32 0 or 1
+            ranked[k, side * n_gt : (side + 1) * n_gt] = (t.sum(1) > 0) & (c > RELATIONSHIP_THRESHOLD).any(1)
+    return {
+        "lane_path": True,
+        "n_gt": n_gt,
+        "confidence": confidence,
+        "tp": tp,
+        "lane_aps": aps,
+        "ranked": ranked,
+        "scored": pred.confidence is not None if scored is None else scored,
+        "source": source,
+        "params": params.to_dict(),
+    }
+
+
+def reference_average_precision(
+    confidence: np.ndarray, tp: np.ndarray, n_gt: int, grouped: bool
+) -> np.float32:
+    """The reference's _AP and _pr_curve: the 11-point AP of predictions (confidence, tp flag) against n_gt GT
+    lanes, walked in decreasing confidence (ties in the given order; `grouped`: a tie is one point of the
+    curve), in float32 as there."""
+    if not len(tp) and n_gt == 0:
+        return np.float32(1)
+    order = np.argsort(-confidence, kind="stable")
+    hits = np.cumsum(tp[order]).astype(np.float32)
+    count = np.arange(1, len(tp) + 1).astype(np.float32)
+    if grouped and len(tp):
+        ranked = confidence[order]
+        ends = np.flatnonzero(np.append(ranked[1:] != ranked[:-1], True))
+        hits, count = hits[ends], count[ends]
+    recall = hits / np.float32(max(n_gt, EPS32))
+    precision = hits / count
+    total = np.float32(0)
+    for step in RECALL_STEPS.astype(np.float32):
+        reached = precision[recall >= step]
+        if len(reached):
+            total = np.float32(total + reached.max())
+    return np.float32(total / np.float32(len(RECALL_STEPS)))
+
+
+def _lanes_result(frames: list[dict], params: OpenLaneV2Params) -> dict:
+    """openlanev2_result of lane-path frames: DET_l and TOP_ll as the reference computes them."""
+    grouped = params.ties == "threshold"
+    confidence = np.concatenate([f["confidence"] for f in frames] or [np.zeros(0)])
+    n_gt = sum(f["n_gt"] for f in frames)
+    det, top, every, every_ranked = {}, {}, [], []
+    for k, threshold in enumerate(params.thresholds):
+        tp = np.concatenate([f["tp"][k] for f in frames] or [np.zeros(0, bool)])
+        det[str(float(threshold))] = reference_average_precision(confidence, tp, n_gt, grouped)
+        aps = np.concatenate([f["lane_aps"][k] for f in frames] or [np.zeros(0)])
+        ranked = np.concatenate([f["ranked"][k] for f in frames] or [np.zeros(0, bool)])
+        top[str(float(threshold))] = float(_reference_mean(aps, ranked))
+        every.append(aps)
+        every_ranked.append(ranked)
+    scored = sum(f["scored"] for f in frames)
+    sources = sorted({f["source"] for f in frames})
+    result = {
+        "det_l": float(np.asarray(list(det.values()), np.float32).mean()),
+        "top_ll": float(_reference_mean(np.concatenate(every), np.concatenate(every_ranked))),
+        "det_l_by_threshold": {t: float(v) for t, v in det.items()},
+        "top_ll_by_threshold": top,
+        "frames": len(frames),
+        "frames_with_gt_lanes": sum(1 for f in frames if f["n_gt"]),
+        "lanes": {"pred": len(confidence), "gt": n_gt},
+        "confidences": NO_SCORE if not scored else SCORED if scored == len(frames) else
+        f"{SCORED} where given ({scored} of {len(frames)} frames), 1.0 for every lane elsewhere",
+        "range": (
+            "OpenLane-V2's annotated lanes as its files hold them (its 100 x 50 m: +-50 m along, +-25 m "
+            f"across), every {GT_POINT_INTERVAL}th point as its val and test collections keep them; "
+            "predictions not clipped"
+        ),
+        "predictions": "; ".join(sources),
+        "follows": REFERENCE,
+        "not_computed": NOT_COMPUTED,
+        "params": params.to_dict(),
+        "version": OPENLANEV2_VERSION,
+    }  # fmt: skip
+    if note := _note(confidence, grouped):
+        result["note"] = note
+    return result
+
+
+def _reference_mean(aps: np.ndarray, ranked: np.ndarray) -> np.floating:
+    """The mean of the lanes' APs as the reference takes it: numpy's mean, in float64 when any AP was ranked,
+    else in float32 (every AP a plain 0 or 1); 0 with no AP."""
+    if not len(aps):
+        return np.float32(0)
+    return aps.mean() if ranked.any() else aps.astype(np.float32).mean()

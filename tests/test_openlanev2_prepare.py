@@ -100,10 +100,11 @@ def test_frames_graph_and_annotated_lanes(tmp_path):
     assert summary["frames"] == 2 and summary["frames_without_images"] == 2
 
     frames = read_table(out, "frames").to_pylist()
-    assert [f["frame_id"] for f in frames] == [f"openlanev2/00001/{T0}", f"openlanev2/00001/{T0 + 100_000_000}"]
+    ids = [f"openlanev2/00001/{T0}", f"openlanev2/00001/{T0 + 100_000_000}"]
+    assert [f["frame_id"] for f in frames] == ids
     first = frames[0]
-    assert (first["dataset"], first["split"], first["log_id"], first["timestamp_ns"]) == ("openlanev2", "train",
-                                                                                          "00001", T0)  # fmt: skip
+    identity = (first["dataset"], first["split"], first["log_id"], first["timestamp_ns"])
+    assert identity == ("openlanev2", "train", "00001", T0)
     assert first["pose_translation"] == [100.0, 200.0, 10.0] and first["city"] == ""
     # the BEV x axis (the ego's right) in the world: the ego's -y turned by the yaw
     w, x, y, z = first["pose_rotation"]
@@ -172,7 +173,8 @@ def test_images_present_give_their_size_and_no_missing_count(tmp_path):
         Image.new("RGB", (64, 48) if name != "ring_front_center" else (48, 64)).save(image)
     summary = run(root, out)
     assert summary["frames_without_images"] == 0 and PreparedData.open(out).frames_without_images == 0
-    cameras = {c["name"]: (c["width"], c["height"]) for c in read_table(out, "frames").to_pylist()[0]["cameras"]}
+    (row,) = read_table(out, "frames").to_pylist()
+    cameras = {c["name"]: (c["width"], c["height"]) for c in row["cameras"]}
     assert cameras["ring_front_center"] == (48, 64) and cameras["ring_rear_left"] == (64, 48)
     missing = pq.read_table(out / "annotated_lanes").column("images_missing").to_pylist()
     assert missing == [0]
@@ -251,6 +253,20 @@ def test_a_bad_cities_file_is_one_line(tmp_path, text, problem):
     assert "\n" not in str(error.value) and not (tmp_path / "out").exists()
 
 
+def test_a_folder_is_added_to_only_with_the_same_cities_and_subset(tmp_path):
+    root, out = tmp_path / "olv2", tmp_path / "out"
+    segment(root, "00001", 1)
+    cities = tmp_path / "cities.csv"
+    cities.write_text("00001,PIT\n")
+    run(root, out, cities=cities)
+    digest = json.loads((out / "manifest.json").read_text())["parameters"]["cities_sha256"]
+    cities.write_text("00001,MIA\n")
+    with pytest.raises(ValueError, match=rf"--cities {cities} changed \(sha256 {digest[:12]}, now "):
+        run(root, out, cities=cities)
+    with pytest.raises(ValueError, match=r"--subset none \(now A\)"):
+        run(root, out, cities=cities, subset="A")
+
+
 def test_options_are_checked_before_any_work(tmp_path):
     root = tmp_path / "olv2"
     segment(root, "00001", 1)
@@ -273,8 +289,9 @@ def test_split_files_name_openlanev2_frames_and_segments(tmp_path):
                                                          "val": tmp_path / "val.txt"})  # fmt: skip
     assert summary["frames"] == 4 and summary["frames_in_no_split_file"] == 1
     splits = {f["frame_id"]: f["split"] for f in read_table(tmp_path / "out", "frames").to_pylist()}
-    assert splits == {f"openlanev2/00001/{T0}": "val", f"openlanev2/00001/{T0 + 100_000_000}": "val",
-                      f"openlanev2/00002/{T0}": "train", f"openlanev2/00002/{T0 + 100_000_000}": "train"}  # fmt: skip
+    later = T0 + 100_000_000
+    assert splits == {f"openlanev2/00001/{T0}": "val", f"openlanev2/00001/{later}": "val",
+                      f"openlanev2/00002/{T0}": "train", f"openlanev2/00002/{later}": "train"}  # fmt: skip
     # the submission key keeps the split folder the file lies in
     assert read_openlanev2_keys(tmp_path / "out")[f"openlanev2/00001/{T0}"] == ("train", "00001", str(T0))
 
@@ -303,13 +320,25 @@ def other_segment(content):
     content["segment_id"] = "00009"
 
 
+def no_annotation(content):
+    del content["annotation"]
+
+
 MALFORMED = {
     "pose": (broken_pose, "pose.rotation: has shape 2 x 2, not 3 x 3"),
     "nan": (nan_point, "annotation.lane_centerline[2].points: has non-finite values"),
-    "one point": (one_point_lane, "annotation.lane_centerline[3].points: has 1 point, a lane needs 2 or more"),
+    "one point": (
+        one_point_lane,
+        "annotation.lane_centerline[3].points: has 1 point, a lane needs 2 or more",
+    ),
     "topology": (short_topology, "annotation.topology_lclc: is 5 x 5, but lane_centerline holds 6 lanes"),
     "missing key": (no_pose, "frame: missing key 'pose'"),
     "segment": (other_segment, "segment_id: is '00009', but the file lies in segment 00001"),
+    "test split": (
+        no_annotation,
+        "annotation: missing: a frame without annotations (as in OpenLane-V2's "
+        "test split) gives no lane graph to prepare",
+    ),
 }
 
 

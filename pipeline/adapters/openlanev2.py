@@ -276,7 +276,10 @@ def read_frame(path: Path, ref: SegmentRef, root: Path) -> tuple[Frame, FrameFil
     check_identity(data, ref, path)
     ego_to_world = rigid(item(data, "pose", path, "frame"), path, "pose")
     cameras, missing = read_cameras(item(data, "sensor", path, "frame"), root, path)
-    lanes = read_lanes(item(data, "annotation", path, "frame"), path)
+    if "annotation" not in data:
+        raise DataError(path, "annotation", "missing: a frame without annotations (as in OpenLane-V2's test "
+                        "split) gives no lane graph to prepare")  # fmt: skip
+    lanes = read_lanes(data["annotation"], path)
     frame = Frame(
         frame_id=frame_id(ref, path), dataset=DATASET, split=ref.split, log_id=ref.segment_id,
         timestamp_ns=int(path.stem),  # as the file names it (subset B: nuScenes' microseconds)

@@ -93,3 +93,59 @@ def test_real_lanes_give_the_graph_that_prepare_crops_from_av2(av2_root, olv2_ro
             assert len(av2.src) > 10
             for field in ("x", "y", "src", "dst"):
                 np.testing.assert_array_equal(getattr(ours, field), getattr(av2, field))
+
+
+@pytest.fixture(scope="module", params=["30x60", "50x100"])
+def prepared_both(request, av2_root, olv2_root, tmp_path_factory) -> tuple[str, Path, Path]:
+    """(range, the real logs prepared as AV2, the same logs written as OpenLane-V2 and prepared), both by
+    `cli prepare` at that --range."""
+    from typer.testing import CliRunner
+
+    from cli import app
+
+    bev_range = request.param
+    out = tmp_path_factory.mktemp(f"prepared_{bev_range}")
+    for dataset, root in (("av2", av2_root), ("openlanev2", olv2_root)):
+        args = ["prepare", "--dataset", dataset, "--root", str(root), "--out", str(out / dataset)]
+        result = CliRunner().invoke(app, [*args, "--range", bev_range])
+        assert result.exit_code == 0, result.output
+    return bev_range, out / "av2", out / "openlanev2"
+
+
+def test_real_logs_prepared_as_openlanev2_equal_the_logs_prepared_as_av2(prepared_both, tmp_path):
+    """Issue 61's equality: every frame's graph, prepared from the OpenLane-V2 files, is the AV2 frame's graph
+    (the same vertices and edges), the poses are the same, and the project's metric scores one against the
+    other at TOPO F1 and mIoU 1 per log (at least 0.99, the issue's bar)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from benchmark.score import score
+    from pipeline.io import read_table
+
+    bev_range, av2_dir, olv2_dir = prepared_both
+
+    def by_frame(folder: Path, table: str) -> dict[str, dict]:
+        # openlanev2/<segment_id>/<timestamp> and av2/<log_id>/<timestamp> name the same frame here
+        return {row["frame_id"].split("/", 1)[1]: row for row in read_table(folder, table).to_pylist()}
+
+    frames_av2, frames_olv2 = by_frame(av2_dir, "frames"), by_frame(olv2_dir, "frames")
+    assert frames_av2.keys() == frames_olv2.keys() and len(frames_av2) == 313
+    for key, row in frames_av2.items():
+        for column in ("split", "log_id", "timestamp_ns", "pose_translation", "pose_rotation"):
+            assert frames_olv2[key][column] == row[column], (key, column)
+    graphs_av2, graphs_olv2 = by_frame(av2_dir, "graphs"), by_frame(olv2_dir, "graphs")
+    assert graphs_av2.keys() == frames_av2.keys()
+    for key, row in graphs_av2.items():
+        for column in ("x", "y", "src", "dst"):
+            assert graphs_olv2[key][column] == row[column], (key, column)
+    schema = read_table(olv2_dir, "graphs").schema
+    for log_id in LOGS:
+        rows = [
+            {**row, "frame_id": f"av2/{key}"} for key, row in graphs_olv2.items() if key.startswith(log_id)
+        ]
+        pred = tmp_path / f"{log_id}.parquet"
+        pq.write_table(pa.Table.from_pylist(rows, schema), pred)
+        result = score(pred, av2_dir)
+        assert result["metric_params"]["bev_range"] == bev_range
+        assert result["frames"] == result["frames_predicted"] == len(rows)
+        assert result["directed"]["topo"]["f1"] >= 0.99 and result["miou"] >= 0.99, (log_id, result)

@@ -231,8 +231,6 @@ def prepare(
     Examples:
       cli prepare --dataset av2 --root data/av2/sensor --out prepared/geo --split-scheme geographic
       cli prepare --dataset nuscenes --root data/nuscenes --version v1.0-mini --out prepared/mini
-      cli prepare --dataset openlanev2 --root data/OpenLane-V2 --subset A --cities cities.csv --range 50x100 \
-        --out prepared/olv2
     """
     from benchmark.tables import finish, leakage_table, prepare_table, split_shares_table
     from pipeline.geometry import Range

@@ -21,7 +21,7 @@ from cli import app
 REPO = Path(__file__).resolve().parents[1]
 COMMANDS = get_command(app).commands
 CHOICES = {  # the options whose values are a closed set: typed, so that click lists and checks them
-    "prepare": {"dataset", "executor", "on_error", "split_scheme"},
+    "prepare": {"dataset", "executor", "on_error", "split_scheme", "subset"},
     "train": {"model", "preset", "modality", "path_points", "best_metric"},
     "eval": {"device", "checkpoint"},
     "score": {"matching", "format_"},

@@ -269,7 +269,8 @@ def test_the_gt_is_every_20th_annotated_point_and_predictions_are_not_resampled(
     assert score([(gt, every)])["det_l"] == pytest.approx(2 / 3, abs=1e-7)
     # a GT lane of 20 points or fewer is its first point alone (the reference itself cannot score it)
     short = lanes([straight((0, 0, 0), length=2.0, n=20)])
-    assert score([(short, lanes([np.zeros((1, 3))], confidence=[1.0]))])["det_l"] == 1.0
+    result = score([(short, lanes([np.zeros((1, 3))], confidence=[1.0]))])
+    assert result["det_l"] == 1.0 and "1 of 1 GT lanes have 20 points or fewer" in result["note"]
 
 
 def test_recall_is_compared_in_float32_as_numpy_1_23_compares_it():

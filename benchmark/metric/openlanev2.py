@@ -583,6 +583,7 @@ def openlanev2_lanes_frame(
     return {
         "lane_path": True,
         "n_gt": n_gt,
+        "one_point_gt": sum(1 for q in gt_points if len(q) == 1),
         "confidence": confidence,
         "tp": tp,
         "lane_aps": aps,
@@ -655,8 +656,15 @@ def _lanes_result(frames: list[dict], params: OpenLaneV2Params) -> dict:
         "params": params.to_dict(),
         "version": OPENLANEV2_VERSION,
     }  # fmt: skip
-    if note := _note(confidence, grouped):
-        result["note"] = note
+    notes = [_note(confidence, grouped)]
+    if one_point := sum(f["one_point_gt"] for f in frames):
+        notes.append(
+            f"{one_point} of {n_gt} GT lanes have {GT_POINT_INTERVAL} points or fewer: OpenLane-V2's "
+            "collection keeps only their first point (its own evaluation fails on them; its annotations have "
+            "201 points)"
+        )
+    if any(notes):
+        result["note"] = "; ".join(n for n in notes if n)
     return result
 
 

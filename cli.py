@@ -400,12 +400,15 @@ def eval_(
 def score(
     pred: Path = typer.Option(
         ..., help="Predictions: a graph-table Parquet file or a folder of shards (e.g. "
-        "RUN/predictions.parquet), or the results JSON of MapTRv2 / LaneGAP or CGNet"),
+        "RUN/predictions.parquet), the results JSON of MapTRv2 / LaneGAP or CGNet, or an OpenLane-V2 "
+        "submission (its pickle or the same as JSON)"),
     gt: Path = typer.Option(..., help="Ground truth: a prepared dataset or a graph-table file"),
-    format_: Literal["auto", "graph", "maptrv2", "cgnet"] = typer.Option(
+    format_: Literal["auto", "graph", "maptrv2", "cgnet", "openlanev2"] = typer.Option(
         "auto", "--format", help="auto: told by the file's content; graph: our graph table; maptrv2: "
         "MapTRv2 / LaneGAP's nuscmap_results.json or av2map_results.json (paths, Path2Graph); cgnet: "
-        "CGNet's nuscmap_results.json (snapped pieces, equal points merged) (docs/guide/score.md)"),
+        "CGNet's nuscmap_results.json (snapped pieces, equal points merged); openlanev2: an OpenLane-V2 "
+        "submission against OpenLane-V2 data (lanes and topology_lclc; traffic elements not read) "
+        "(docs/guide/score.md)"),
     class_name: str = typer.Option(
         None, show_default="centerline", help="maptrv2 / cgnet: the class of vectors scored, others ignored"),
     min_score: float = typer.Option(
@@ -416,7 +419,8 @@ def score(
     split: str = typer.Option(
         None, show_default="the split(s) of the predicted frames", help="Score the ground truth's frames "
         "of this split (a prepared dataset's); graph: a frame without a prediction row is an empty "
-        "prediction; maptrv2 / cgnet: the frames in the file; a predicted frame of another split is refused"),
+        "prediction; maptrv2 / cgnet: the frames in the file; a predicted frame of another split is refused; "
+        "openlanev2: the submission's frames of other splits are ignored, a frame it lacks is empty"),
     out: Path = typer.Option(
         None, show_default="not written", help="A .json file: the result (scores, thresholds, "
         "metric_version); otherwise a run folder (predictions.parquet, frame_counts.parquet, metrics.json) "
@@ -438,7 +442,8 @@ def score(
     """TOPO, Junction TOPO (directed and undirected) and mIoU of predicted lane graphs (docs/METRICS.md); the
     JSON records the thresholds and metric_version. Predictions of `cli eval` made by a model trained on other
     target parameters than the ground truth's are refused (stale data). Result files of MapTRv2 / LaneGAP and
-    CGNet are scored as those codebases write them; a pickle is refused. Guide: docs/guide/score.md.
+    CGNet are scored as those codebases write them, and OpenLane-V2 submissions as its devkit reads them (a
+    pickle read without running anything in it; any other pickle is refused). Guide: docs/guide/score.md.
 
     \b
     Examples:

@@ -33,7 +33,9 @@ from benchmark.metric.frame import Frame
 from benchmark.metric.params import MetricParams
 from benchmark.metric.table import ALWAYS, Contributions, Metric
 from pipeline import io
+from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
+from pipeline.manifest import PreparedData
 from pipeline.progress import track
 
 
@@ -151,6 +153,19 @@ def write_run(run_dir: Path, graphs: dict[str, LaneGraph], frame_counts: np.ndar
     io.write_json(Path(run_dir) / "metrics.json", metrics)
 
 
+def frames_of(pred: Predictions, gt: dict[str, LaneGraph], gt_path: Path) -> list[Frame]:
+    """Each predicted frame beside its ground truth as the metrics take it; with OpenLane-V2 ground truth
+    also its annotated lanes and its ground plane (frames.ground_z, ground_slope)."""
+    if PreparedData.open(gt_path).kind != "openlanev2":
+        return [prediction.frame(gt[prediction.frame_id]) for prediction in pred]
+    frame_ids = [prediction.frame_id for prediction in pred]
+    lanes = io.read_annotated_lanes(gt_path, frame_ids)
+    table = io.read_table(gt_path, "frames", columns=["frame_id", "ground_z", "ground_slope"])
+    ground = {frame_id: (float(z), float(slope[0]), float(slope[1])) for frame_id, z, slope in zip(
+        *(table.column(name).to_pylist() for name in ("frame_id", "ground_z", "ground_slope")))}  # fmt: skip
+    return [p.frame(gt[p.frame_id], lanes[p.frame_id], ground[p.frame_id]) for p in pred]
+
+
 def score(
     pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, bootstrap: int = 0,
     split: str | None = None, fmt: str = formats.AUTO, class_name: str | None = None,
@@ -173,9 +188,10 @@ def score(
     params.setdefault("bev_range", default_range(gt_path))
     metric_params = MetricParams(**params)
     gt = graphs_from_table(read_graph_table(gt_path), Path(gt_path))
-    truth = GroundTruth(Path(gt_path), gt, split, workers if workers > 0 else os.cpu_count() or 1)
+    truth = GroundTruth(Path(gt_path), gt, split, workers if workers > 0 else os.cpu_count() or 1,
+                        Range.parse(metric_params.bev_range))  # fmt: skip
     pred = reader.read(source, options, truth)
-    frames = [prediction.frame(gt[prediction.frame_id]) for prediction in pred]
+    frames = frames_of(pred, gt, Path(gt_path))
     result, frame_counts = score_frame_records(frames, metric_params, workers, metrics)
     if frame_counts is not None:
         add_intervals(result, frame_counts, bootstrap)

@@ -62,6 +62,10 @@ def files(tmp_path) -> dict[str, Path]:
     (out.setdefault("broken JSON", tmp_path / "broken.json")).write_text('{"results": [')
     (out.setdefault("no results", tmp_path / "meta.json")).write_text('{"meta": {}}')
     (out.setdefault("pickle", tmp_path / "results.json")).write_bytes(pickle.dumps({"results": []}))
+    submission = {("val", "s", "1"): {"predictions": {"lane_centerline": [], "topology_lclc": np.zeros(0)}}}
+    (out.setdefault("openlanev2", tmp_path / "sub.json")).write_bytes(pickle.dumps({"results": submission}))
+    records = [{"split": "val", "segment_id": "s", "timestamp": "1", "predictions": {}}]
+    out["openlanev2 JSON"] = write_results(tmp_path / "sub.pkl", records)
     return out
 
 
@@ -69,6 +73,7 @@ DETECTED = {
     "graph table": ["graph"], "folder of shards": ["graph"], "maptrv2": ["maptrv2"],
     "maptrv2 divider": ["maptrv2"], "cgnet": ["cgnet"], "unknown classes": [], "no vectors": [],
     "no samples": [], "text": [], "broken JSON": [], "no results": [], "pickle": [],
+    "openlanev2": ["openlanev2"], "openlanev2 JSON": ["openlanev2"],
 }  # fmt: skip
 
 
@@ -86,8 +91,8 @@ def test_auto_picks_one_reader_and_refuses_a_file_none_recognises_in_one_line(fi
         with pytest.raises(FormatError) as refused:
             formats.choose(Source.of(files[kind]))
         assert str(refused.value) == (
-            f"{files[kind]}: no format recognises its content (tried graph, maptrv2, cgnet); pass --format "
-            "NAME to hear why that one does not read it"
+            f"{files[kind]}: no format recognises its content (tried graph, maptrv2, cgnet, openlanev2); "
+            "pass --format NAME to hear why that one does not read it"
         )
     # a result file without vectors is either codebase's: told apart by nothing, named by the user
     with pytest.raises(FormatError) as refused:
@@ -98,13 +103,14 @@ def test_auto_picks_one_reader_and_refuses_a_file_none_recognises_in_one_line(fi
     with pytest.raises(FormatError) as refused:  # what either reader says of it
         formats.choose(Source.of(files["no samples"]))
     assert str(refused.value) == f"{files['no samples']}: no sample in its results list"
-    with pytest.raises(FormatError, match=r"^\S*results.json: a pickle, refused: reading one can run code"):
-        formats.choose(Source.of(files["pickle"]))
+    with pytest.raises(FormatError, match=r'^\S*results.json: not an OpenLane-V2 submission: no "results"'):
+        formats.choose(Source.of(files["pickle"]))  # the one pickle format's reader says why not
     with pytest.raises(FormatError, match=r"^\S*gone.json: no such file or folder$"):
         formats.choose(Source.of(tmp_path / "gone.json"))
     # a named format is taken as named, its content unlooked at (its reader says what is wrong)
     assert formats.choose(Source.of(files["text"]), "cgnet").name == "cgnet"
-    with pytest.raises(FormatError, match="^--format bogus: expected one of graph, maptrv2, cgnet, auto$"):
+    expected = "graph, maptrv2, cgnet, openlanev2, auto"
+    with pytest.raises(FormatError, match=f"^--format bogus: expected one of {expected}$"):
         formats.choose(Source.of(files["text"]), "bogus")
 
 

@@ -5,11 +5,29 @@ predicted lanes with each edge's score from its lane's confidence."""
 
 from __future__ import annotations
 
-import numpy as np
+import codecs
+import copyreg
+import json
+import os
+import pickle
+import pickletools
+from pathlib import Path
 
+import numpy as np
+import pytest
+from test_openlanev2_prepare import segment
+from typer.testing import CliRunner
+
+from benchmark.formats.base import FormatError
+from benchmark.formats.openlanev2_submission import lanes_of, load_pickle, prediction_of, write_submission
+from benchmark.score import score
+from cli import app
 from pipeline.geometry import Range
+from pipeline.io import read_annotated_lanes, read_openlanev2_keys
 from pipeline.lane_graph import graph_of_annotated, scored_graph_of_annotated
+from pipeline.prepare import prepare
 from pipeline.records import AnnotatedLanes
+from pipeline.targets import TargetOptions
 
 
 def lanes(points: list, links=None, confidence=None, ids=None) -> AnnotatedLanes:
@@ -44,3 +62,345 @@ def test_each_edge_of_a_predicted_graph_scores_its_lanes_highest_confidence():
     assert scored_graph_of_annotated(lanes([trunk]))[1] is None
     empty, empty_scores = scored_graph_of_annotated(lanes([], confidence=[]))
     assert len(empty.src) == 0 and empty_scores.shape == (0,)
+
+
+# ---- the restricted unpickler --------------------------------------------------------------------------
+
+MARKER_NAME = "ran"
+
+
+class RunsCode:
+    """Unpickled by pickle.load, this would run a shell command that writes a marker file."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return os.system, (f"touch {self.marker}",)
+
+
+class Custom:
+    """A class of the submitter's: not a dict, list, tuple, string, number or array."""
+
+
+class Reduces:
+    """Pickled as the given reduce value: a call numpy itself never writes."""
+
+    def __init__(self, value) -> None:
+        self.value = value
+
+    def __reduce__(self):
+        return self.value
+
+
+def refusal(tmp_path: Path, data: bytes) -> str:
+    path = tmp_path / "evil.pkl"
+    path.write_bytes(data)
+    with pytest.raises(FormatError) as refused:
+        load_pickle(path)
+    message = str(refused.value)
+    assert "\n" not in message and message.startswith(f"{path}: ")
+    return message.removeprefix(f"{path}: ")
+
+
+REFUSED = ("refused: a submission holds only dicts, lists, tuples, strings, numbers and numpy arrays; "
+           "nothing in it was run")
+
+
+def test_a_pickle_that_would_run_code_is_refused_naming_the_global_and_nothing_runs(tmp_path):
+    marker = tmp_path / MARKER_NAME
+    submission = {"method": "m", "results": {("val", "s", "1"): {"predictions": RunsCode(marker)}}}
+    for protocol in range(pickle.HIGHEST_PROTOCOL + 1):
+        said = refusal(tmp_path, pickle.dumps(submission, protocol=protocol))
+        assert said == f"a pickle that names the global {os.system.__module__}.system, {REFUSED}"
+    assert not marker.exists()
+    said = refusal(tmp_path, pickle.dumps({"results": Custom()}))
+    assert said == f"a pickle that names the global {__name__}.Custom, {REFUSED}"
+
+
+@pytest.mark.parametrize("data, global_name", [
+    (b"cbuiltins\neval\n(S'1+1'\ntR.", "builtins.eval"),  # protocol 0: GLOBAL, REDUCE
+    (b"(S'true'\nios\nsystem\n.", "os.system"),  # INST
+    (b"\x80\x04\x8c\x08builtins\x94\x8c\x07getattr\x94\x93\x94.", "builtins.getattr"),  # STACK_GLOBAL
+    (b"\x80\x02csubprocess\nPopen\nq\x00.", "subprocess.Popen"),
+    (b"\x80\x02(cbuiltins\nexec\nX\x04\x00\x00\x00passo.", "builtins.exec"),  # OBJ
+    (b"\x80\x02c__builtin__\nbytearray\n)R.", "__builtin__.bytearray"),  # Python 2's names, mapped by none
+])  # fmt: skip
+def test_hand_built_pickles_naming_any_other_global_are_refused(tmp_path, data, global_name):
+    assert refusal(tmp_path, data) == f"a pickle that names the global {global_name}, {REFUSED}"
+
+
+def test_a_global_registered_as_an_extension_is_refused(tmp_path):
+    copyreg.add_extension("os", "system", 240)
+    try:
+        said = refusal(tmp_path, b"\x80\x02\x82\xf0X\x04\x00\x00\x00trueq\x00\x85R.")  # EXT1 240
+    finally:
+        copyreg.remove_extension("os", "system", 240)
+    assert said == f"a pickle that names the global os.system, {REFUSED}"
+
+
+reconstruct = np.core.multiarray._reconstruct
+
+
+@pytest.mark.parametrize("value, what", [
+    ((reconstruct, (np.dtype, (0,), b"b")), "calls numpy's _reconstruct with arguments numpy never writes "
+                                            "(numpy.dtype, tuple, bytes)"),
+    ((reconstruct, (np.ndarray, (10**12,), b"b")), "calls numpy's _reconstruct with arguments numpy never "
+                                                   "writes (numpy.ndarray, tuple, bytes)"),
+    ((np.ndarray, ((10**9,),)), "calls numpy.ndarray itself"),
+    ((np.dtype, ("O", False, True)), "builds a numpy.dtype of 'O', not of numbers"),
+    ((np.dtype, ("V8", False, True), (3, "|", None, None, None, 8, 1, 63)),
+     "builds a numpy.dtype of 'V8', not of numbers"),  # a dtype whose flags say it holds objects
+    ((np.dtype, ("f8", False, True), (3, "<", None, None, None, -1, -1, 63)),
+     "gives numpy.dtype '<f8' a state numpy never writes"),
+    ((reconstruct, (np.ndarray, (0,), b"b"), (1, (10**9,), np.dtype("f8"), False, b"\0" * 8)),
+     "gives a numpy array's state 8 bytes for shape (1000000000,) of <f8"),
+    ((np.core.multiarray.scalar, (np.dtype("f8"), b"\0" * 3)),
+     "gives numpy's scalar 3 bytes for shape () of <f8"),
+    ((bytes, (10**12,)), "calls bytes with arguments numpy never writes (int)"),
+    ((codecs.encode, ("x", "zlib")), "calls _codecs.encode with arguments numpy never writes (str, str)"),
+])  # fmt: skip
+def test_what_the_unpickler_admits_takes_only_the_arguments_numpy_writes(tmp_path, value, what):
+    assert refusal(tmp_path, pickle.dumps(Reduces(value), protocol=2)) == f"a pickle that {what}, {REFUSED}"
+
+
+def test_an_admitted_global_cannot_be_rebuilt_and_a_persistent_id_is_refused(tmp_path):
+    said = refusal(tmp_path, b"\x80\x02cnumpy\ndtype\n}b.")  # BUILD on the global itself
+    assert said == f"a pickle that rebuilds numpy.dtype, {REFUSED}"
+    said = refusal(tmp_path, b"\x80\x02cnumpy\ndtype\nN}\x86b.")  # (state, slot state): setattr otherwise
+    assert said == f"a pickle that rebuilds numpy.dtype, {REFUSED}"
+    said = refusal(tmp_path, b"\x80\x02X\x01\x00\x00\x00aQ.")
+    assert said == f"a pickle that holds a persistent id, {REFUSED}"
+    assert refusal(tmp_path, pickle.dumps({"a": 1})[:-3]) == (
+        "not a readable pickle (UnpicklingError: pickle data was truncated)"
+    )
+
+
+ARRAYS = {
+    "f4": np.arange(12, dtype="f4").reshape(4, 3) / 7, "f8": np.linspace(-1, 1, 9).reshape(3, 3),
+    ">f8": np.arange(6, dtype=">f8"), "i8": np.arange(-3, 3), "u1": np.arange(5, dtype="u1"),
+    "b1": np.array([True, False, True]), "c16": np.array([1 + 2j, -3j]), "empty": np.zeros((0, 3)),
+    "fortran": np.asfortranarray(np.arange(6.0).reshape(2, 3)), "f2": np.array([0.5, 2.0], "f2"),
+}  # fmt: skip
+SCALARS = {"f4": np.float32(0.25), "f8": np.float64(-1.5), "i4": np.int32(-7), "u8": np.uint64(2**63),
+           "b": np.bool_(True)}  # fmt: skip
+
+
+def numpy2_names(data: bytes) -> bytes:
+    """A pickle as numpy 2 writes it: numpy.core's modules named numpy._core (frames dropped, which a reader
+    does without: they would no longer fit)."""
+    frames = [position for opcode, _, position in pickletools.genops(data) if opcode.name == "FRAME"]
+    for position in reversed(frames):
+        data = data[:position] + data[position + 9 :]
+    for old in ("numpy.core.multiarray", "numpy.core.numeric"):
+        new = old.replace("numpy.core", "numpy._core")
+        data = data.replace(bytes([0x8C, len(old)]) + old.encode(), bytes([0x8C, len(new)]) + new.encode())
+        data = data.replace(f"c{old}\n".encode(), f"c{new}\n".encode())
+    return data
+
+
+@pytest.mark.parametrize("protocol", range(pickle.HIGHEST_PROTOCOL + 1))
+@pytest.mark.parametrize("names", ["numpy 1", "numpy 2"])
+def test_numpy_arrays_and_scalars_are_rebuilt_exactly_under_either_numpys_names(tmp_path, protocol, names):
+    content = {"arrays": ARRAYS, "scalars": SCALARS, "plain": [1, 2.5, "x", None, True, ("a", "b", "c")]}
+    data = pickle.dumps(content, protocol=protocol)
+    if names == "numpy 2":
+        data = numpy2_names(data)
+        assert b"numpy._core" in data and b"numpy.core" not in data
+    path = tmp_path / "arrays.pkl"
+    path.write_bytes(data)
+    loaded = load_pickle(path)
+    for name, array in ARRAYS.items():
+        got = loaded["arrays"][name]
+        assert type(got) is np.ndarray and got.dtype == array.dtype and got.shape == array.shape, name
+        assert np.array_equal(got, array) and got.flags.writeable, name
+    for name, value in SCALARS.items():
+        got = loaded["scalars"][name]
+        assert type(got) is type(value) and got == value, name
+    assert loaded["plain"] == content["plain"]
+
+
+# ---- submissions scored against prepared OpenLane-V2 frames --------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def prepared(tmp_path_factory) -> Path:
+    """OpenLane-V2 frame files (test_openlanev2_prepare's fork and merge) prepared: segment seg-a's 3 frames
+    in train, seg-b's 2 and seg-c's 2 in val."""
+    root, out = tmp_path_factory.mktemp("olv2"), tmp_path_factory.mktemp("prepared") / "data"
+    segment(root, "seg-a", 3, "train")
+    segment(root, "seg-b", 2, "val")
+    segment(root, "seg-c", 2, "val", translation=(500.0, 200.0, 10.0))
+    prepare("openlanev2", root, out, TargetOptions())
+    return out
+
+
+def predicted(data: Path, split: str | None = None) -> dict[tuple[str, str, str], AnnotatedLanes]:
+    """The prepared frames' annotated lanes as predictions, by key: distinct confidences, links as
+    probabilities (0.9 linked, 0.2 not)."""
+    keys, annotated = read_openlanev2_keys(data), read_annotated_lanes(data)
+    return {
+        keys[f]: AnnotatedLanes(lanes.points, np.where(lanes.links > 0, 0.9, 0.2), lanes.ids,
+                                np.linspace(0.95, 0.5, len(lanes)))  # fmt: skip
+        for f, lanes in annotated.items() if split is None or keys[f][0] == split
+    }
+
+
+def as_json(frames: dict, path: Path) -> Path:
+    """The same submission in the JSON form."""
+    records = [{"split": key[0], "segment_id": key[1], "timestamp": key[2],
+                "predictions": {name: (value.tolist() if isinstance(value, np.ndarray) else value)
+                                for name, value in plain(prediction_of(lanes)).items()}}
+               for key, lanes in frames.items()]  # fmt: skip
+    path.write_text(json.dumps({"method": "mine", "results": records}))
+    return path
+
+
+def plain(prediction: dict) -> dict:
+    lanes = [{**lane, "points": lane["points"].tolist()} for lane in prediction["lane_centerline"]]
+    return {**prediction, "lane_centerline": lanes}
+
+
+def test_write_submission_round_trips_through_the_reader_in_the_documented_structure(prepared, tmp_path):
+    frames = predicted(prepared, "val")
+    path = tmp_path / "submission.pkl"
+    write_submission(path, "mine", frames)
+    content = load_pickle(path)
+    assert content["method"] == "mine" and set(content["results"]) == set(frames)
+    for key, lanes in frames.items():
+        prediction = content["results"][key]["predictions"]
+        assert [lane["id"] for lane in prediction["lane_centerline"]] == [int(i) for i in lanes.ids]
+        assert prediction["traffic_element"] == [] and prediction["topology_lcte"].shape == (len(lanes), 0)
+        read = lanes_of(prediction, path, key)
+        assert read.ids == lanes.ids and np.array_equal(read.links, lanes.links)
+        assert np.array_equal(read.confidence, lanes.confidence)
+        assert all(np.array_equal(a, b) for a, b in zip(read.points, lanes.points))
+    # ids that are not ints' stay strings; annotated lanes (no confidence) are written with 1.0
+    key = ("val", "s", "1")
+    write_submission(path, "m", {key: lanes_made([[[0, 0, 0], [1, 0, 0]]], ids=["007"])})
+    lane = load_pickle(path)["results"][key]["predictions"]["lane_centerline"][0]
+    assert lane["id"] == "007" and lane["confidence"] == 1.0
+    with pytest.raises(ValueError, match="key \\('val', 's'\\) is not \\(split, segment_id, timestamp\\)"):
+        write_submission(tmp_path / "bad.pkl", "m", {("val", "s"): lanes_made([])})
+    assert not (tmp_path / "bad.pkl").exists()
+
+
+def test_a_submission_scores_its_frames_and_the_json_form_scores_alike(prepared, tmp_path):
+    frames = predicted(prepared, "val")
+    pickled = tmp_path / "submission.pkl"
+    write_submission(pickled, "mine", frames)
+    result = score(pickled, prepared, bootstrap=0)  # auto: told by its content
+    assert result["external"]["format"] == "openlanev2" and result["splits"] == ["val"]
+    assert (result["frames"], result["frames_predicted"], result["frames_missing"]) == (4, 4, 0)
+    assert result["external"]["lanes_read"] == sum(len(lanes) for lanes in frames.values())
+    assert result["external"]["not_computed"] == ["DET_t", "TOP_lt", "OLS"]
+    assert result["directed"]["topo"]["f1"] == 1.0 and result["miou"] == 1.0  # the annotated lanes themselves
+    in_json = score(as_json(frames, tmp_path / "submission.json"), prepared, bootstrap=0)
+    assert in_json["external"]["format"] == "openlanev2"
+    assert {k: v for k, v in in_json.items() if k not in ("pred", "external")} == {
+        k: v for k, v in result.items() if k not in ("pred", "external")}  # fmt: skip
+
+
+def test_frames_the_submission_lacks_are_empty_and_split_picks_the_keys_that_count(prepared, tmp_path):
+    frames = predicted(prepared)
+    seg_b = {key: lanes for key, lanes in frames.items() if key[1] == "seg-b"}
+    path = tmp_path / "b.pkl"
+    write_submission(path, "mine", seg_b)
+    result = score(path, prepared, bootstrap=0)
+    assert (result["frames"], result["frames_predicted"], result["frames_missing"]) == (4, 2, 2)
+    assert result["directed"]["topo"]["recall"] < 1.0 == result["directed"]["topo"]["precision"]
+    # with --split, the train keys are not counted (nor refused); an unknown train key neither
+    train_too = {**seg_b, **{k: v for k, v in frames.items() if k[0] == "train"},
+                 ("train", "seg-x", "1"): frames[next(iter(seg_b))]}  # fmt: skip
+    write_submission(path, "mine", train_too)
+    split = score(path, prepared, split="val", bootstrap=0)
+    assert (split["frames"], split["frames_predicted"], split["frames_missing"]) == (4, 2, 2)
+    assert split["external"]["frames_in_file"] == 6
+    assert split["directed"] == result["directed"]
+    with pytest.raises(FormatError, match=r"b.pkl: frame \('train', 'seg-x', '1'\) is not in the ground"):
+        score(path, prepared, bootstrap=0)  # without --split every key counts
+
+
+def test_a_key_of_no_prepared_frame_is_refused_naming_the_first(prepared, tmp_path):
+    frames = predicted(prepared, "val")
+    lanes = next(iter(frames.values()))
+    frames[("val", "seg-z", "2")] = frames[("val", "seg-z", "1")] = lanes
+    path = tmp_path / "unknown.pkl"
+    write_submission(path, "mine", frames)
+    with pytest.raises(FormatError) as refused:
+        score(path, prepared, split="val", bootstrap=0)
+    assert str(refused.value) == (
+        f"{path}: frame ('val', 'seg-z', '1') (and 1 more) is not in the ground truth {prepared}"
+    )
+
+
+def lanes_made(points: list, links=None, confidence=None, ids=None) -> AnnotatedLanes:
+    return lanes(points, links, confidence, ids)
+
+
+GOOD_LANE = {"id": 1, "points": np.array([[0.0, 0, 0], [5, 0, 0]]), "confidence": 0.5}
+
+
+@pytest.mark.parametrize("prediction, problem", [
+    ({"topology_lclc": np.zeros((0, 0))}, 'no "lane_centerline" list in its predictions'),
+    ({"lane_centerline": [GOOD_LANE]}, 'no "topology_lclc" in its predictions'),
+    ({"lane_centerline": [{"id": 1, "points": np.zeros((2, 3))}], "topology_lclc": np.zeros((1, 1))},
+     'lane_centerline[0] is not {"id", "points", "confidence"}'),
+    ({"lane_centerline": [{**GOOD_LANE, "points": np.zeros((4, 2))}], "topology_lclc": np.zeros((1, 1))},
+     "lane 1: points of shape (4, 2), not (n, 3) with n >= 2"),
+    ({"lane_centerline": [{**GOOD_LANE, "points": np.zeros((1, 3))}], "topology_lclc": np.zeros((1, 1))},
+     "lane 1: points of shape (1, 3), not (n, 3) with n >= 2"),
+    ({"lane_centerline": [{**GOOD_LANE, "points": np.array([[0, 0, 0], [np.nan, 1, 0]])}],
+      "topology_lclc": np.zeros((1, 1))}, "lane 1: points: not an array of finite numbers"),
+    ({"lane_centerline": [{**GOOD_LANE, "points": [[0, 0, 0], [1, 1]]}], "topology_lclc": np.zeros((1, 1))},
+     "lane 1: points: not an array of numbers"),
+    ({"lane_centerline": [{**GOOD_LANE, "confidence": float("inf")}], "topology_lclc": np.zeros((1, 1))},
+     "lane 1: confidence: inf is not a finite number"),
+    ({"lane_centerline": [{**GOOD_LANE, "confidence": "0.5"}], "topology_lclc": np.zeros((1, 1))},
+     "lane 1: confidence: '0.5' is not a finite number"),
+    ({"lane_centerline": [GOOD_LANE, GOOD_LANE], "topology_lclc": np.zeros((2, 2))},
+     "lane id '1' appears twice"),
+    ({"lane_centerline": [GOOD_LANE], "topology_lclc": np.zeros((1, 2))},
+     "topology_lclc of shape (1, 2), not (1, 1) for its 1 lanes"),
+    ({"lane_centerline": [GOOD_LANE], "topology_lclc": np.full((1, 1), np.nan)},
+     "topology_lclc: not an array of finite numbers"),
+])  # fmt: skip
+def test_a_malformed_frame_is_one_line_naming_the_file_and_the_frame(prepared, tmp_path, prediction, problem):
+    key = next(iter(read_openlanev2_keys(prepared).values()))
+    path = tmp_path / "bad.pkl"
+    path.write_bytes(pickle.dumps({"method": "m", "results": {key: {"predictions": prediction}}}))
+    with pytest.raises(FormatError) as refused:
+        score(path, prepared, bootstrap=0)
+    assert str(refused.value) == f"{path}: frame {key}: {problem}"
+
+
+def test_what_is_not_a_submission_or_its_data_is_refused_in_one_line(prepared, synth_prepared, tmp_path):
+    path = tmp_path / "s.pkl"
+    write_submission(path, "mine", predicted(prepared, "val"))
+    with pytest.raises(FormatError, match="s.pkl: an OpenLane-V2 submission, scored against OpenLane-V2 "
+                       r"frames; the ground truth \S+ is av2 data: pass one that cli prepare --dataset "
+                       "openlanev2 made"):
+        score(path, synth_prepared["av2"], bootstrap=0)  # fmt: skip
+    with pytest.raises(FormatError, match="--min-score, --sweep: only for a result file of MapTRv2 / "
+                       "LaneGAP or CGNet"):
+        score(path, prepared, min_score=0.5, sweep=True, bootstrap=0)  # fmt: skip
+    bad_key = tmp_path / "k.pkl"
+    bad_key.write_bytes(pickle.dumps({"results": {("val", "s", 1): {"predictions": {}}}}))
+    with pytest.raises(FormatError, match=r"k.pkl: results key \('val', 's', 1\) is not \(split, "):
+        score(bad_key, prepared, bootstrap=0)
+    records = tmp_path / "r.json"
+    records.write_text(json.dumps({"results": [{"split": "val", "segment_id": "s", "predictions": {}}]}))
+    with pytest.raises(FormatError, match=r'r.json: results\[0\]: not \{"split", "segment_id", "timestamp"'):
+        score(records, prepared, fmt="openlanev2", bootstrap=0)
+
+
+def test_cli_score_says_the_missing_frames_and_what_is_not_computed(prepared, tmp_path):
+    path = tmp_path / "b.pkl"
+    write_submission(path, "mine", {k: v for k, v in predicted(prepared).items() if k[1] == "seg-b"})
+    command = ["score", "--pred", str(path), "--gt", str(prepared), "--bootstrap", "0"]
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "(OpenLane-V2 submission, method mine)" in text
+    assert "4 frames scored, 2 in the submission (12 lanes), 2 missing (scored as empty)" in text
+    assert "not computed: DET_t, TOP_lt, OLS" in text

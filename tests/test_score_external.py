@@ -275,9 +275,11 @@ def test_unknown_ids_pickles_and_formats_are_refused(synth_prepared, tmp_path):
         score(other, data, fmt="maptrv2", split="mini_val")
     pickled = tmp_path / "results.pkl"
     pickled.write_bytes(pickle.dumps({"results": []}))
-    for fmt in ("graph", "maptrv2", "cgnet", "auto"):
+    for fmt in ("graph", "maptrv2", "cgnet"):
         with pytest.raises(ValueError, match="results.pkl: a pickle, refused: reading one can run code"):
             score(pickled, data, fmt=fmt)
+    with pytest.raises(ValueError, match='results.pkl: not an OpenLane-V2 submission: no "results" dict'):
+        score(pickled, data)  # auto: the one reader of pickles says why it does not read this one
     with pytest.raises(ValueError, match="u.json: a JSON file, not a graph table; pass --format"):
         score(unknown, data, fmt="graph")
     with pytest.raises(ValueError, match="--min-score: only for a result file"):

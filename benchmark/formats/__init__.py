@@ -9,11 +9,13 @@ docs/ARCHITECTURE.md says more.
 
 from __future__ import annotations
 
-from benchmark.formats import cgnet_json, graph, maptrv2_json, result_json
+from benchmark.formats import cgnet_json, graph, maptrv2_json, openlanev2_submission, result_json
 from benchmark.formats.base import FormatError, Options, PredictionFormat, Source
 
 # in the order `--format auto` asks them; each one's detection excludes the others'
-FORMATS: tuple[PredictionFormat, ...] = (graph.FORMAT, maptrv2_json.FORMAT, cgnet_json.FORMAT)
+FORMATS: tuple[PredictionFormat, ...] = (
+    graph.FORMAT, maptrv2_json.FORMAT, cgnet_json.FORMAT, openlanev2_submission.FORMAT
+)
 AUTO = "auto"
 
 
@@ -31,7 +33,8 @@ def choose(source: Source, name: str = AUTO) -> PredictionFormat:
     for fmt in FORMATS:
         if fmt.detect(source):
             return fmt
-    source.refuse_pickle()
+    if (refusal := openlanev2_submission.undecided(source)) is not None:  # a pickle no format reads
+        raise FormatError(refusal)
     if (refusal := result_json.undecided(source)) is not None:
         raise FormatError(refusal)
     tried = ", ".join(fmt.name for fmt in FORMATS)

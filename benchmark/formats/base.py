@@ -20,7 +20,9 @@ import numpy as np
 
 from benchmark.metric.frame import Frame
 from pipeline import io
+from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
+from pipeline.records import AnnotatedLanes
 
 SWEEP = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8)  # `--sweep`'s kept scores, beside the file's own
 PICKLE_SUFFIXES = (".pkl", ".pickle")
@@ -47,6 +49,8 @@ class Source:
     path: Path
     _parsed: object = field(default=None, repr=False)  # the parsed JSON, or the error parsing it
     _tried: bool = field(default=False, repr=False)
+    _unpickled: object = field(default=None, repr=False)  # the pickle as its reader read it, or why not
+    _tried_pickle: bool = field(default=False, repr=False)
 
     @classmethod
     def of(cls, pred_path: Path | str) -> Source:
@@ -76,6 +80,22 @@ class Source:
             raise parsed
         return parsed
 
+    def unpickled(self, load: Callable[[Path], object], keep: bool = True) -> object:
+        """The file read once by `load`, the one reader of pickles (a restricted one: never pickle.load),
+        whose refusal is raised each time; `keep` as for json."""
+        if not self._tried_pickle:
+            try:
+                self._unpickled = load(self.path)
+            except FormatError as refusal:
+                self._unpickled = refusal
+            self._tried_pickle = True
+        loaded = self._unpickled
+        if not keep:
+            self._unpickled, self._tried_pickle = None, False
+        if isinstance(loaded, FormatError):
+            raise loaded
+        return loaded
+
     def is_pickle(self) -> bool:
         """A pickle by its name or by its first byte (the opcode of protocol 2 and later)."""
         return self.path.is_file() and (
@@ -88,8 +108,8 @@ class Source:
             return None
         return (
             f"{self.path}: a pickle, refused: reading one can run code. Write the results as JSON in the "
-            "schema of MapTRv2's nuscmap_results.json and pass --format maptrv2 or cgnet "
-            "(docs/guide/score.md)"
+            "schema of MapTRv2's nuscmap_results.json and pass --format maptrv2 or cgnet; an OpenLane-V2 "
+            "submission is read with --format openlanev2 (docs/guide/score.md)"
         )
 
     def refuse_pickle(self) -> None:
@@ -115,6 +135,7 @@ class GroundTruth:
     graphs: dict[str, LaneGraph]  # by frame id
     split: str | None  # --split (None: the split(s) of the predicted frames)
     workers: int  # processes a conversion may use (at least 1)
+    rng: Range | None = None  # the command's range, which a format's lanes are clipped to (None: unclipped)
 
     def frame_splits(self) -> dict[str, str] | None:
         """{frame_id: split} of a prepared dataset's `frames` table; None for a graph-table file."""
@@ -137,10 +158,13 @@ class FramePrediction:
     frame_id: str
     graph: LaneGraph
     edge_scores: np.ndarray | None = None  # one per edge of `graph`, its lane's confidence; None: no score
+    lanes: AnnotatedLanes | None = None  # an OpenLane-V2 submission's lanes as the file holds them
 
-    def frame(self, gt: LaneGraph) -> Frame:
-        """The frame as the metrics take it, beside its ground truth."""
-        return Frame(self.graph, gt, self.edge_scores)
+    def frame(self, gt: LaneGraph, gt_lanes: AnnotatedLanes | None = None,
+              ground: tuple[float, float, float] | None = None) -> Frame:  # fmt: skip
+        """The frame as the metrics take it, beside its ground truth (with OpenLane-V2 data, the annotated
+        lanes and the ground plane)."""
+        return Frame(self.graph, gt, self.edge_scores, gt_lanes, self.lanes, ground)
 
 
 @dataclass(frozen=True)
@@ -171,6 +195,10 @@ class Predictions:
     vectors_kept: int | None = None  # those of the class above the kept score
     points_clipped: int | None = None  # their points outside the range, clipped
     convert: Callable[[float], Swept] | None = None  # the file at another kept score (None: no scores)
+    # an OpenLane-V2 submission: its method, its lanes in the frames scored, the file's scores not computed
+    method: str | None = None
+    lanes_read: int | None = None
+    not_computed: tuple[str, ...] = ()
 
     def __iter__(self) -> Iterator[FramePrediction]:
         return iter(self.frames)
@@ -197,6 +225,8 @@ class Predictions:
             "vectors_read": self.vectors_read,
             "vectors_kept": self.vectors_kept,
             "points_clipped": self.points_clipped,
+            **({"method": self.method, "lanes_read": self.lanes_read} if self.lanes_read is not None else {}),
+            **({"not_computed": list(self.not_computed)} if self.not_computed else {}),
         }
 
     def sweep(self) -> Iterator[Swept]:

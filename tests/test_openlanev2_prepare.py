@@ -385,3 +385,38 @@ def test_the_command_line_says_it_in_one_line(tmp_path):
                                       str(tmp_path / "geo"), "--split-scheme", "geographic"])  # fmt: skip
     errors = [line for line in result.output.splitlines() if line.lower().startswith("error")]
     assert result.exit_code == 1 and len(errors) == 1 and "--cities FILE" in result.output, result.output
+
+
+def test_cli_synth_openlanev2_prepares_as_its_av2_logs(tmp_path):
+    """`cli synth`'s OpenLane-V2 root (its AV2 logs written as subset A, images linked) prepares to the
+    graphs, poses and cameras of the same logs prepared as AV2, each image's size read from its header."""
+    from pipeline.synth import synth
+
+    raw = tmp_path / "raw"
+    synth(raw, logs=2, frames_per_log=3, seed=0, frame_period=1.0, worlds=2, val_frames_per_log=3)
+    options = TargetOptions(bev_range=Range.parse("50x100"))
+    summary = prepare("openlanev2", raw / "openlanev2", tmp_path / "olv2", options)
+    prepare("av2", raw / "av2" / "sensor", tmp_path / "av2", options)
+    assert summary["frames"] == 6 and summary["frames_without_images"] == 0
+
+    def rows(folder, table):
+        return {r["frame_id"].split("/", 1)[1]: r for r in read_table(tmp_path / folder, table).to_pylist()}
+
+    olv2_graphs, av2_graphs = rows("olv2", "graphs"), rows("av2", "graphs")
+    assert sorted(olv2_graphs) == sorted(av2_graphs)
+    for key, graph in av2_graphs.items():
+        assert {f: olv2_graphs[key][f] for f in ("x", "y", "src", "dst")} == {
+            f: graph[f] for f in ("x", "y", "src", "dst")
+        }
+    olv2_frames, av2_frames = rows("olv2", "frames"), rows("av2", "frames")
+    for key, frame in av2_frames.items():
+        ours = olv2_frames[key]
+        assert (ours["split"], ours["pose_translation"]) == (frame["split"], frame["pose_translation"])
+        np.testing.assert_allclose(ours["pose_rotation"], frame["pose_rotation"], atol=1e-12)
+        for theirs, mine in zip(frame["cameras"], ours["cameras"], strict=True):
+            assert (mine["name"], mine["width"], mine["height"]) == (theirs["name"], theirs["width"],
+                                                                     theirs["height"])  # fmt: skip
+            np.testing.assert_allclose(mine["sensor_to_ego"], theirs["sensor_to_ego"], atol=1e-12)
+            assert mine["intrinsics"] == theirs["intrinsics"]
+            image = raw / "openlanev2" / mine["image_path"]
+            assert image.read_bytes() == (raw / "av2" / "sensor" / theirs["image_path"]).read_bytes()

@@ -99,6 +99,10 @@ def test_real_data_is_labelled_by_its_root_folder(tmp_path):
     assert openlanev2_data(Block("openlanev2", None, "val", [], manifest, synthetic=False)) == (
         "ours, OpenLane-V2 `OpenLane-V2`"
     )
+    subset_a = {**manifest, "parameters": {"subset": "A"}}  # `cli prepare --subset A`
+    assert openlanev2_data(Block("openlanev2", None, "val", [], subset_a, synthetic=False)) == (
+        "ours, OpenLane-V2 `OpenLane-V2`, subset A"
+    )
     assert openlanev2_data(Block("openlanev2", None, "val", [], manifest, synthetic=True)) == (
         "ours, synthetic OpenLane-V2 (`cli synth`)"
     )
@@ -129,15 +133,12 @@ def scored_run(data: Path, run: Path) -> None:
 
 
 def prepare_openlanev2(raw: Path, out: Path, bev_range: str) -> None:
-    """OpenLane-V2 data as `cli prepare --dataset openlanev2` makes it from `cli synth`'s OpenLane-V2
-    layout."""
+    """`cli prepare --dataset openlanev2` of `cli synth`'s OpenLane-V2 layout at a range."""
     from pipeline.geometry import Range
     from pipeline.prepare import prepare
     from pipeline.targets import TargetOptions
 
-    prepare("av2", raw / "av2" / "sensor", out, TargetOptions(bev_range=Range.parse(bev_range)))
-    manifest = json.loads((out / "manifest.json").read_text())
-    (out / "manifest.json").write_text(json.dumps({**manifest, "dataset": "openlanev2"}))
+    prepare("openlanev2", raw / "openlanev2", out, TargetOptions(bev_range=Range.parse(bev_range)))
 
 
 @pytest.fixture(scope="module")
@@ -189,9 +190,9 @@ def test_runs_at_another_range_or_on_other_data_are_left_out_with_a_line(made):
     assert run_metrics(made, "narrow")["metric_params"]["bev_range"] == "30x60"
     left_out = [line for line in part.splitlines() if line.startswith("- Left out")]
     assert left_out == [
-        "- Left out: 1 run on OpenLane-V2 data measured at another range (1 at 30 x 60 m), not at the "
-        "paper's 50 x 100 m (`cli prepare --dataset openlanev2 --range 50x100`).",
-        "- Left out: 1 run on other data (AV2 1): the paper's table is on OpenLane-V2.",
+        "- Left out: 1 run on OpenLane-V2 data measured at 30 x 60 m, not at the paper's 50 x 100 m "
+        "(`cli prepare --dataset openlanev2 --range 50x100`).",
+        "- Left out: 1 run on other data (AV2: 1): the paper's table is on OpenLane-V2.",
     ]
     assert "narrow" not in section(part, "#### Ours:").split("- Left out")[0]
 
@@ -221,3 +222,27 @@ def test_without_an_openlanev2_run_the_table_is_listed_as_not_shown(made):
     assert "- `tab:toponet`, comparison on OpenLane-V2: shown in a section of its own when a run is on " \
            "OpenLane-V2 data (`cli prepare --dataset openlanev2`), beside those runs measured at " \
            "50 x 100 m." in section(text, "## The paper's tables not shown")  # fmt: skip
+
+
+def test_each_reason_to_leave_a_run_out_is_one_line_with_its_count(tmp_path):
+    """openlanev2_runs on runs as runs.py reads them: two other ranges, a run without scores, one whose
+    data is not found (its dataset unknown), and the one kept."""
+    from benchmark.report.paper_tables import openlanev2_runs
+    from benchmark.report.runs import Run
+
+    def run(name: str, dataset: str, bev_range: str | None) -> Run:
+        metrics = None if bev_range is None else {"metric_params": {"bev_range": bev_range}, "miou": 0.25}
+        return Run(tmp_path / name, name, metrics, None, None, dataset, "val", None)
+
+    ours = [run("a", "openlanev2", "30x60"), run("b", "openlanev2", "20x40"), run("c", "openlanev2", "30x60"),
+            run("crashed", "openlanev2", None), run("kept", "openlanev2", "50x100")]  # fmt: skip
+    gone = Block("unknown", None, "val", [run("x", "unknown", "50x100")])  # its data not found
+    blocks = [Block("openlanev2", tmp_path, "val", ours), gone]
+    kept, lines = openlanev2_runs(blocks, "50x100")
+    assert [(block.dataset, r.name) for block, r in kept] == [("openlanev2", "kept")]
+    assert lines == [
+        "Left out: 3 runs on OpenLane-V2 data measured at 30 x 60 m (2), 20 x 40 m (1), not at the paper's "
+        "50 x 100 m (`cli prepare --dataset openlanev2 --range 50x100`).",
+        "Left out: 1 run on other data (data not found: 1): the paper's table is on OpenLane-V2.",
+        "Left out: 1 run on OpenLane-V2 data without scores (crashed).",
+    ]

@@ -171,7 +171,8 @@ def openlanev2_runs(blocks: list[Block], bev_range: str) -> tuple[list[tuple[Blo
     for block in blocks:
         for run in block.runs:
             if block.dataset != OPENLANEV2:
-                other_data[DATASET_NAMES.get(block.dataset, block.dataset)] += 1
+                name = DATASET_NAMES.get(block.dataset, block.dataset)
+                other_data[name if block.data is not None else "data not found"] += 1
             elif not run.scored:
                 unscored.append(run.name)
             elif run.bev_range != bev_range:
@@ -183,12 +184,12 @@ def openlanev2_runs(blocks: list[Block], bev_range: str) -> tuple[list[tuple[Blo
     paper = range_words(bev_range)
     lines = []
     if ranges:
-        at = ", ".join(f"{count} at {words}" for words, count in ranges.items())
-        lines.append(f"Left out: {runs_count(ranges.total())} on OpenLane-V2 data measured at another range "
-                     f"({at}), not at the paper's {paper} (`cli prepare --dataset openlanev2 --range "
-                     f"{bev_range}`).")  # fmt: skip
+        at = [*ranges][0] if len(ranges) == 1 else ", ".join(f"{r} ({n})" for r, n in ranges.items())
+        redo = f"`cli prepare --dataset openlanev2 --range {bev_range}`"
+        lines.append(f"Left out: {runs_count(ranges.total())} on OpenLane-V2 data measured at {at}, not at "
+                     f"the paper's {paper} ({redo}).")  # fmt: skip
     if other_data:
-        on = ", ".join(f"{name} {count}" for name, count in other_data.items())
+        on = ", ".join(f"{name}: {count}" for name, count in other_data.items())
         lines.append(f"Left out: {runs_count(other_data.total())} on other data ({on}): the paper's table "
                      "is on OpenLane-V2.")  # fmt: skip
     if unscored:
@@ -214,11 +215,12 @@ def range_words(bev_range: str | None) -> str:
 
 def openlanev2_data(block: Block) -> str:
     """Which OpenLane-V2 data a block's runs ran on: "ours, synthetic OpenLane-V2 (`cli synth`)", or
-    the raw root's folder name, as its manifest names it."""
+    the raw root's folder name and the subset read (`--subset`), as its manifest names them."""
     if block.synthetic:
         return "ours, synthetic OpenLane-V2 (`cli synth`)"
-    root = block.manifest.get("root")
+    root, subset = block.manifest.get("root"), block.parameters.get("subset")
     name = f"OpenLane-V2 `{Path(root).name}`" if root else "OpenLane-V2 (root not recorded)"
+    name += f", subset {subset}" if subset else ""
     return f"ours, {name}" + (" (its raw data is gone)" if block.synthetic is None and root else "")
 
 

@@ -404,3 +404,44 @@ def test_cli_score_says_the_missing_frames_and_what_is_not_computed(prepared, tm
     assert "(OpenLane-V2 submission, method mine)" in text
     assert "4 frames scored, 2 in the submission (12 lanes), 2 missing (scored as empty)" in text
     assert "not computed: DET_t, TOP_lt, OLS" in text
+
+
+def test_a_submission_as_toponet_writes_it_is_read_with_its_traffic_elements_left_aside(prepared, tmp_path):
+    """TopoNet's format_results: metadata strings, ids 10000 + i, float32 points (the annotated lanes' own,
+    which float32 holds exactly), python float confidences, traffic elements with numpy scalars, float32
+    topologies; pickled by mmcv.dump (protocol 4)."""
+    keys = read_openlanev2_keys(prepared)
+    results = {}
+    for frame_id, lanes in read_annotated_lanes(prepared).items():
+        if keys[frame_id][0] != "val":
+            continue
+        scores = np.linspace(0.9, 0.4, len(lanes), dtype=np.float32)
+        results[keys[frame_id]] = {"predictions": {
+            "lane_centerline": [{"id": 10000 + i, "points": p.astype(np.float32), "confidence": s.item()}
+                                for i, (p, s) in enumerate(zip(lanes.points, scores))],
+            "traffic_element": [{"id": 20000, "category": 1, "attribute": np.int64(3),
+                                 "points": np.zeros((2, 2), np.float32), "confidence": np.float32(0.7)}],
+            "topology_lclc": lanes.links.astype(np.float32),
+            "topology_lcte": np.ones((len(lanes), 1), np.float32),
+        }}  # fmt: skip
+    submission = {"method": "TopoNet", "authors": [], "e-mail": "dummy",
+                  "institution / company": "OpenDriveLab", "country / region": "CN", "results": results}
+    path = tmp_path / "results.pkl"
+    path.write_bytes(pickle.dumps(submission, protocol=4))
+    result = score(path, prepared, bootstrap=0)
+    assert result["external"]["method"] == "TopoNet" and result["frames_predicted"] == 4
+    lanes_written = sum(len(record["predictions"]["topology_lclc"]) for record in results.values())
+    assert result["external"]["lanes_read"] == lanes_written
+    assert result["directed"]["topo"]["f1"] == 1.0 and result["miou"] == 1.0
+
+
+def test_cli_score_refuses_a_pickle_that_would_run_code_in_one_line(prepared, tmp_path):
+    marker = tmp_path / MARKER_NAME
+    path = tmp_path / "submission.pkl"
+    path.write_bytes(pickle.dumps({"method": "m", "results": {("val", "s", "1"): RunsCode(marker)}}))
+    result = CliRunner().invoke(app, ["score", "--pred", str(path), "--gt", str(prepared)])
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == 1 and not marker.exists()
+    assert " ".join(result.output.split()) == (
+        f"error: {path}: a pickle that names the global {os.system.__module__}.system, {REFUSED}"
+    ), lines

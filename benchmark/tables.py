@@ -27,10 +27,10 @@ def prepare_table(summary: dict) -> Table:
     """`cli prepare`'s summary: frames, the per-frame counts, what the split files or the split scheme left
     out (where they did) and the speed."""
     table = Table("quantity", "value")
-    keys = ("frames", "frames_skipped", "paths_per_frame", "pieces_per_frame", "junctions_per_frame",
-            "path_cap_hits", "logs_already_done", "logs_in_no_split_file", "frames_in_no_split_file",
-            "split_file_lines_naming_nothing_here", "split_file_lines_unmatched", "frames_in_buffer",
-            "frames_per_second")  # fmt: skip
+    keys = ("frames", "frames_skipped", "frames_without_images", "paths_per_frame", "pieces_per_frame",
+            "junctions_per_frame", "path_cap_hits", "logs_already_done", "logs_in_no_split_file",
+            "frames_in_no_split_file", "split_file_lines_naming_nothing_here", "split_file_lines_unmatched",
+            "frames_in_buffer", "frames_per_second")  # fmt: skip
     for key in keys:
         if key in summary:
             value = summary[key]

@@ -380,7 +380,9 @@ def test_the_command_line_says_it_in_one_line(tmp_path):
     result = CliRunner().invoke(app, ["prepare", "--dataset", "openlanev2", "--root", str(root), "--out",
                                       str(out), "--range", "50x100"])  # fmt: skip
     assert result.exit_code == 0, result.output
-    assert "leakage not measured: OpenLane-V2's frame files carry no city" in " ".join(result.output.split())
+    said = " ".join(result.output.split())
+    assert "leakage not measured: OpenLane-V2's frame files carry no city" in said
+    assert "│ frames without images │ 2 │" in said
     result = CliRunner().invoke(app, ["prepare", "--dataset", "openlanev2", "--root", str(root), "--out",
                                       str(tmp_path / "geo"), "--split-scheme", "geographic"])  # fmt: skip
     errors = [line for line in result.output.splitlines() if line.lower().startswith("error")]

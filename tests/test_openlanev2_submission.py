@@ -445,3 +445,20 @@ def test_cli_score_refuses_a_pickle_that_would_run_code_in_one_line(prepared, tm
     assert " ".join(result.output.split()) == (
         f"error: {path}: a pickle that names the global {os.system.__module__}.system, {REFUSED}"
     ), lines
+
+
+def test_the_content_tells_a_pickle_from_the_json_form_whatever_the_name(prepared, tmp_path):
+    frames = predicted(prepared, "val")
+    named_pickle = as_json(frames, tmp_path / "results.pkl")  # JSON under a pickle's name: read as JSON
+    assert score(named_pickle, prepared, bootstrap=0)["frames_predicted"] == 4
+    old = tmp_path / "old.pkl"  # protocol 0 has no mark: auto does not take it, the line says what to pass
+    old.write_bytes(pickle.dumps({"results": {key: {"predictions": prediction_of(lanes)}
+                                              for key, lanes in frames.items()}}, protocol=0))  # fmt: skip
+    with pytest.raises(FormatError) as refused:
+        score(old, prepared, bootstrap=0)
+    assert str(refused.value) == (
+        f"{old}: an OpenLane-V2 submission in pickle protocol 0 or 1: pass --format openlanev2"
+    )
+    assert score(old, prepared, fmt="openlanev2", bootstrap=0)["frames_predicted"] == 4
+    with pytest.raises(FormatError, match="not a file: an OpenLane-V2 submission is one pickle or JSON file"):
+        score(tmp_path, prepared, fmt="openlanev2", bootstrap=0)

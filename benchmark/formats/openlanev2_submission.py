@@ -386,14 +386,30 @@ def finite_number(value, what: str) -> float:
 
 
 def read_submission(source: Source, keep: bool = False) -> Submission:
-    """The file as a submission: a pickle (by its first byte or its name) or the JSON form."""
-    if source.head(1) == b"\x80" or source.is_pickle():
+    """The file as a submission: a pickle or the JSON form, told by the content (a pickle of protocol 0 or
+    1, which has no mark of its own, by its name)."""
+    if not source.path.is_file():
+        raise FormatError(f"{source.path}: not a file: an OpenLane-V2 submission is one pickle or JSON file")
+    if is_pickle(source):
         return submission_of_pickle(source.unpickled(load_pickle, keep), source.path)
     try:
         data = source.json(keep)
     except (ValueError, UnicodeDecodeError) as error:
         raise FormatError(f"{source.path}: neither a pickle nor JSON ({error})") from None
     return submission_of_json(data, source.path)
+
+
+def is_pickle(source: Source) -> bool:
+    """A pickle by its first byte (protocols 2 to 5), or by its name where it is not JSON."""
+    if source.head(1) == b"\x80":
+        return True
+    if not source.is_pickle():
+        return False
+    try:
+        source.json()
+    except (ValueError, UnicodeDecodeError):
+        return True
+    return False
 
 
 # ---- the format --------------------------------------------------------------------------------------
@@ -416,7 +432,7 @@ def detect(source: Source) -> bool:
 
 def undecided(source: Source) -> str | None:
     """The line refusing, under auto, a pickle that no format reads (None: not a pickle)."""
-    if not source.is_pickle():
+    if not source.path.is_file() or not is_pickle(source):
         return None
     try:
         submission_of_pickle(source.unpickled(load_pickle), source.path)

@@ -462,3 +462,24 @@ def test_the_content_tells_a_pickle_from_the_json_form_whatever_the_name(prepare
     assert score(old, prepared, fmt="openlanev2", bootstrap=0)["frames_predicted"] == 4
     with pytest.raises(FormatError, match="not a file: an OpenLane-V2 submission is one pickle or JSON file"):
         score(tmp_path, prepared, fmt="openlanev2", bootstrap=0)
+
+
+def test_a_real_log_written_as_openlanev2_scores_its_own_lanes_as_a_perfect_submission(av2_root, tmp_path):
+    """The real AV2 val log of ../shared/data in OpenLane-V2's layout (pipeline.synth.openlanev2_writer),
+    prepared at OpenLane-V2's 50 x 100 m; its annotated lanes written by write_submission, with distinct
+    confidences and links as probabilities, score the paper's metrics at 1 on every frame."""
+    from pipeline.synth.openlanev2_writer import write_from_av2
+
+    root, data = tmp_path / "olv2", tmp_path / "prepared"
+    written = write_from_av2(av2_root / "val" / "3b3570b4-7b0b-3268-a571-b0889dbf40b6", root, "val")
+    prepare("openlanev2", root, data, TargetOptions(bev_range=Range.parse("50x100")))
+    frames = predicted(data)
+    assert len(frames) == written.frames == 157
+    path = tmp_path / "submission.pkl"
+    write_submission(path, "the annotation", frames)
+    result = score(path, data, bootstrap=0)
+    assert (result["frames"], result["frames_predicted"], result["frames_missing"]) == (157, 157, 0)
+    assert result["metric_params"]["bev_range"] == "50x100"
+    for mode in ("directed", "undirected"):
+        assert result[mode]["topo"]["f1"] == result[mode]["junction_topo"]["f1"] == 1.0
+    assert result["miou"] == 1.0

@@ -415,3 +415,53 @@ def test_random_frames_agree_with_the_slow_reading(seed):
     assert result["det_l"] == det  # float32 arithmetic, step by step: the very same float
     assert result["top_ll"] == pytest.approx(top, abs=1e-12)
     assert 0 < det < 1 and 0 < top < 1  # the cases are not degenerate
+
+
+# ---------------------------------------------------------------------------------------------------
+# Through `cli score`'s reading: an OpenLane-V2 prepared dataset takes the lane path
+
+
+def test_score_of_an_openlanev2_dataset_takes_the_lane_path(tmp_path):
+    from test_openlanev2_prepare import segment
+
+    from benchmark.formats.openlanev2_submission import write_submission
+    from benchmark.metric.table import parse_metrics
+    from benchmark.score import score as cli_score
+    from pipeline.io import read_annotated_lanes, read_openlanev2_keys
+    from pipeline.prepare import prepare
+    from pipeline.targets import TargetOptions
+
+    root, data = tmp_path / "olv2", tmp_path / "prepared"
+    # OpenLane-V2's annotations: 201 points a lane; a fork (0 -> 1, 0 -> 2) and a lane beside
+    fork = [
+        straight((-20, 0, 0.1)),
+        straight((0, 0, 0.1), (1, 0.1, 0.01)),
+        straight((0, 0, 0.1), (1, -0.1, 0)),
+    ]
+    annotation = {"lanes": [p.tolist() for p in [*fork, straight((-20, 3.5, 0.1), length=40.0)]],
+                  "links": [[0, 1, 1, 0], [0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]]}  # fmt: skip
+    segment(root, "seg-b", 2, "val", **annotation)
+    segment(root, "seg-c", 2, "val", translation=(500.0, 200.0, 10.0), **annotation)
+    prepare("openlanev2", root, data, TargetOptions())
+    keys, annotated = read_openlanev2_keys(data), read_annotated_lanes(data)
+    rng = np.random.default_rng(0)
+    moved = {  # the annotated lanes 0-2 m off, distinct confidences and link probabilities
+        f: lanes(
+            [p + rng.uniform(0, 2, 3) for p in a.points],
+            rng.uniform(0.2, 0.9, (len(a), len(a))),
+            rng.random(len(a)),
+        )  # fmt: skip
+        for f, a in annotated.items()
+    }
+    submission = tmp_path / "submission.pkl"
+    write_submission(submission, "mine", {keys[f]: moved[f] for f in moved})
+    metric = parse_metrics("openlanev2")
+    result = cli_score(submission, data, bootstrap=0, metrics=metric)["openlanev2"]
+    det, top = slow_score([(annotated[f], moved[f]) for f in sorted(annotated)])
+    assert result["follows"] == REFERENCE and result["lanes"]["gt"] == sum(len(a) for a in annotated.values())
+    assert result["det_l"] == pytest.approx(det, abs=1e-12) and result["top_ll"] == pytest.approx(
+        top, abs=1e-12
+    )
+    assert 0 < det < 1 and 0 < top < 1 and "note" not in result
+    # the prepared graphs themselves as a graph table: the graph path's lanes with heights, on the lane path
+    assert "follows" in cli_score(data, data, bootstrap=0, metrics=metric)["openlanev2"]

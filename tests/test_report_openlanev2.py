@@ -3,8 +3,10 @@
 OpenLane-V2 data at that range beside it; runs at another range or on other data left out with a line
 that says why, and OpenLane-V2 runs in no AV2 or nuScenes table.
 
-The runs are `cli score --out` run folders (no training) on synthetic data: `wide`, OpenLane-V2 data
-prepared at 50 x 100 m; `narrow`, the same at 30 x 60 m; `av2`, AV2 data at 30 x 60 m.
+The runs are `cli score --out` run folders (no training) on `cli synth`'s data: `wide`, a graph table on
+its OpenLane-V2 layout prepared at 50 x 100 m (`cli prepare --dataset openlanev2 --range 50x100`), and
+`submission`, an OpenLane-V2 submission on the same; `narrow`, a graph table on it prepared at 30 x 60 m;
+`av2`, one on its AV2 logs prepared at 30 x 60 m.
 """
 
 from __future__ import annotations
@@ -132,6 +134,29 @@ def scored_run(data: Path, run: Path) -> None:
     score(predictions, data, out=run, split="val")
 
 
+def submission_run(data: Path, run: Path) -> None:
+    """A run folder of `cli score --out` of an OpenLane-V2 submission (write_submission, as `cli eval`
+    writes one): the val frames' annotated lanes, every third lane and its links dropped."""
+    import numpy as np
+
+    from benchmark.formats.openlanev2_submission import write_submission
+    from benchmark.score import score
+    from pipeline import io
+    from pipeline.records import AnnotatedLanes
+
+    frames = io.read_table(data, "frames", columns=["frame_id", "split"]).to_pylist()
+    val = [frame["frame_id"] for frame in frames if frame["split"] == "val"]
+    keys, submitted = io.read_openlanev2_keys(data), {}
+    for frame_id, lanes in io.read_annotated_lanes(data, val).items():
+        keep = [i for i in range(len(lanes)) if i % 3 != 2]
+        points, ids = [lanes.points[i] for i in keep], [lanes.ids[i] for i in keep]
+        links, confidence = lanes.links[np.ix_(keep, keep)], np.linspace(1.0, 0.5, len(keep))
+        submitted[keys[frame_id]] = AnnotatedLanes(points, links, ids, confidence)
+    path = data.parent / f"{run.name}.pkl"
+    write_submission(path, "two thirds of the lanes", submitted)
+    score(path, data, out=run, split="val")
+
+
 def prepare_openlanev2(raw: Path, out: Path, bev_range: str) -> None:
     """`cli prepare --dataset openlanev2` of `cli synth`'s OpenLane-V2 layout at a range."""
     from pipeline.geometry import Range
@@ -156,6 +181,7 @@ def made(tmp_path_factory) -> dict:
         prepare_openlanev2(root / "raw", datas[name], bev_range)
     for name, data in datas.items():
         scored_run(data, root / "runs" / name)
+    submission_run(datas["wide"], root / "runs" / "submission")
     report = write_report([root / "runs"], root / "report", reference="paper", draws=0)
     alone = write_report([root / "runs" / "av2"], root / "report_av2", reference="paper", draws=0)
     return {"root": root, "text": report.path.read_text(), "report": report,
@@ -178,10 +204,16 @@ def test_the_section_shows_the_papers_rows_and_our_run_at_its_range(made):
     assert not any("**" in cell for row in rows for cell in row)  # never bolded
     header, rows = first_table(section(part, "#### Ours:"))
     assert header == ["data", "run", "method", "modality", "split", "frames", "mIoU"]
-    wide = run_metrics(made, "wide")
-    assert wide["metric_params"]["bev_range"] == "50x100" and 0 < wide["miou"] < 1
-    assert rows == [["ours, synthetic OpenLane-V2 (`cli synth`)", "wide", "graph table (external)", "unknown",
-                     "val split", str(wide["frames"]), f"{100 * wide['miou']:.1f}"]]  # fmt: skip
+    wide, submission = run_metrics(made, "wide"), run_metrics(made, "submission")
+    for metrics in (wide, submission):
+        assert metrics["metric_params"]["bev_range"] == "50x100" and 0 < metrics["miou"] < 1
+    synthetic = "ours, synthetic OpenLane-V2 (`cli synth`)"
+    assert rows == [
+        [synthetic, "submission", "OpenLane-V2 submission `two thirds of the lanes` (external)", "unknown",
+         "val split", str(submission["frames"]), f"{100 * submission['miou']:.1f}"],
+        [synthetic, "wide", "graph table (external)", "unknown", "val split", str(wide["frames"]),
+         f"{100 * wide['miou']:.1f}"],
+    ]  # fmt: skip
     assert "A run on synthetic OpenLane-V2 data (`cli synth`) is on worlds of its own" in part
 
 
@@ -200,17 +232,18 @@ def test_runs_at_another_range_or_on_other_data_are_left_out_with_a_line(made):
 def test_openlanev2_runs_stand_in_no_av2_table_and_the_av2_tables_beside_no_openlanev2_block(made):
     text, report = made["text"], made["report"]
     by_run = {run.name: block for block in report.blocks for run in block.runs}
-    assert [by_run[name].dataset for name in ("wide", "narrow", "av2")] == ["openlanev2"] * 2 + ["av2"]
+    assert [by_run[name].dataset for name in ("wide", "submission", "narrow", "av2")] == \
+        ["openlanev2"] * 3 + ["av2"]  # fmt: skip
     av2_block = section(text, f"## {by_run['av2'].title}")
     _, rows = first_table(section(av2_block, "### Main table"))
     assert [row[0] for row in rows if not row[0].startswith(("constant", "best constant"))] == ["av2"]
     assert "paper `tab:modeling`" in av2_block  # the AV2 block has the paper's AV2 rows beside it
-    for name in ("wide", "narrow"):
-        part = section(text, f"## {by_run[name].title}")
+    for names in (["submission", "wide"], ["narrow"]):
+        part = section(text, f"## {by_run[names[0]].title}")
         assert OPENLANEV2_BLOCK_NOTE in part
         assert "#### Reference" not in part and "paper `" not in part
         _, rows = first_table(section(part, "### Main table"))
-        assert [row[0] for row in rows] == [name]
+        assert [row[0] for row in rows] == names
     index = {block.title: i for i, block in enumerate(report.blocks)}
     assert [t for t, _, _ in report.references[index[by_run["wide"].title]]] == []
     assert "- `tab:toponet`" not in section(text, "## The paper's tables not shown")

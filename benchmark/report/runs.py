@@ -27,7 +27,8 @@ RUN_MARKERS = ("metrics.json", "config.json", "run.json", "checkpoint.pt", "log.
 REQUIRED = ("frames", "directed", "undirected", "metric_params", "params", "fps_net", "fps", "split", "data")
 MEASURED = ("params", "fps_net", "fps")  # null only in an external run's metrics.json (not measured here)
 # an external run (`cli score --out RUN_DIR`: another codebase's result file, metrics.json's "external")
-EXTERNAL_NAMES = {"maptrv2": "MapTRv2 / LaneGAP JSON", "cgnet": "CGNet JSON", "graph": "graph table"}
+EXTERNAL_NAMES = {"maptrv2": "MapTRv2 / LaneGAP JSON", "cgnet": "CGNet JSON", "graph": "graph table",
+                  "openlanev2": "OpenLane-V2 submission"}  # fmt: skip
 VALIDATION_FILE = "val.jsonl"
 # the raw roots that `cli synth` writes, as its marker (pipeline.synth.MARKER) names them
 SYNTH_ROOTS = ("av2_root", "nuscenes_root", "openlanev2_root")
@@ -163,7 +164,8 @@ class Run:
     def method(self) -> str:
         if self.external is not None:
             fmt = self.external.get("format")
-            return f"{EXTERNAL_NAMES.get(fmt, fmt)} (external)"
+            named = f" `{self.external['method']}`" if self.external.get("method") else ""  # a submission's
+            return f"{EXTERNAL_NAMES.get(fmt, fmt)}{named} (external)"
         model = (self.metrics or {}).get("model") or (self.config or {}).get("model") or "?"
         return METHOD_NAMES.get(model, model)
 

@@ -2,7 +2,9 @@
 match a block, their rows in the report's own columns and units, and the notes report.md says of them.
 
 The numbers come from benchmark/report/reference.py (paper_reference.toml); they stand as reference tables
-of their own, never bolded, ranked or averaged with measured rows.
+of their own, never bolded, ranked or averaged with measured rows. The paper's OpenLane-V2 table
+(`tab:toponet`) stands in a section of its own, beside the runs on OpenLane-V2 data at its range
+(openlanev2_runs, openlanev2_table); OpenLane-V2 blocks get none of its nuScenes and AV2 tables.
 """
 
 from __future__ import annotations

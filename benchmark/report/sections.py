@@ -1,5 +1,6 @@
 """The sections of report.md, each a list of markdown lines: the introduction, each block's tables and
-pictures, the round trips, the paper's tables not shown, the training loss and validation curves.
+pictures, the round trips, the paper's OpenLane-V2 table with the runs beside it, the paper's tables not
+shown, the training loss and validation curves.
 
 The section builders share a Sections: where the pictures go (benchmark/report/figures.py draws them), the
 paper's tables, and which of those were placed; benchmark/report/writer.py puts the sections in order.

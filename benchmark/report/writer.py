@@ -11,7 +11,8 @@ Each F1 has a 95 % interval from a bootstrap over the block's frames (benchmark/
 from the per-frame counts `cli eval` keeps (RUN/frame_counts.parquet); the summary calls a run's lead a lead
 only when the paired interval of the difference (same frames, same draws) excludes 0. With
 `reference="paper"`, the paper's published tables (benchmark/report/reference.py) stand beside the measured
-ones they match, as reference tables of their own. Paths are written relative to the working directory.
+ones they match, as reference tables of their own, and its OpenLane-V2 table in a section of its own beside
+the runs on OpenLane-V2 data at its range. Paths are written relative to the working directory.
 """
 
 from __future__ import annotations

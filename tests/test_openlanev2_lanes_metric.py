@@ -465,3 +465,12 @@ def test_score_of_an_openlanev2_dataset_takes_the_lane_path(tmp_path):
     assert 0 < det < 1 and 0 < top < 1 and "note" not in result
     # the prepared graphs themselves as a graph table: the graph path's lanes with heights, on the lane path
     assert "follows" in cli_score(data, data, bootstrap=0, metrics=metric)["openlanev2"]
+
+
+def test_the_chamfer_mean_sums_as_numpy_sums():
+    from benchmark.metric.openlanev2 import _numpy_sum
+
+    rng = np.random.default_rng(3)
+    for n in [1, 7, 8, 9, 127, 128, 129, 136, 255, 256, 257, 1000, 5000]:
+        values = rng.random(n) * 10.0 ** rng.integers(-3, 4, n)
+        assert _numpy_sum(values) == np.add.reduce(values)  # the very float: pairwise, not in order

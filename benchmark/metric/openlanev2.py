@@ -161,30 +161,56 @@ def _point_distance(a, i, b, j):
 
 
 @kernel
-def _numpy_sum(values):
-    """values' sum as numpy's add.reduce sums a float64 array (its pairwise summation), so that a mean equals
-    numpy's to the last bit."""
-    n = len(values)
+def _block_sum(values, start, n):
+    """numpy's pairwise_sum of values[start:start + n] for n <= 128: a plain sum below 8, else eight running
+    sums combined pairwise, then the rest one by one."""
     if n < 8:
         total = 0.0
-        for i in range(n):
+        for i in range(start, start + n):
             total += values[i]
         return total
-    if n <= 128:
-        r = values[:8].copy()
-        i = 8
-        while i < n - n % 8:
-            for k in range(8):
-                r[k] += values[i + k]
-            i += 8
-        total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-        while i < n:
-            total += values[i]
-            i += 1
-        return total
-    half = n // 2
-    half -= half % 8
-    return _numpy_sum(values[:half]) + _numpy_sum(values[half:])
+    r = values[start : start + 8].copy()
+    i = 8
+    while i < n - n % 8:
+        for k in range(8):
+            r[k] += values[start + i + k]
+        i += 8
+    total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        total += values[start + i]
+        i += 1
+    return total
+
+
+@kernel
+def _numpy_sum(values):
+    """values' sum as numpy's add.reduce sums a float64 array (its pairwise summation: above 128 values, the
+    two halves, cut at a multiple of 8, summed apart), so that a mean equals numpy's to the last bit. Its
+    recursion is walked with a stack."""
+    starts, lengths, stage = np.zeros(64, np.int64), np.zeros(64, np.int64), np.zeros(64, np.int64)
+    sums = np.zeros(64)
+    depth, done = 0, 0
+    lengths[0] = len(values)
+    while depth >= 0:
+        n = lengths[depth]
+        if n <= 128:
+            sums[done] = _block_sum(values, starts[depth], n)
+            done += 1
+            depth -= 1
+            continue
+        half = n // 2 - (n // 2) % 8
+        if stage[depth] < 2:  # the left half, then the right half
+            first = stage[depth] == 0
+            stage[depth] += 1
+            starts[depth + 1] = starts[depth] if first else starts[depth] + half
+            lengths[depth + 1] = half if first else n - half
+            stage[depth + 1] = 0
+            depth += 1
+            continue
+        done -= 1
+        sums[done - 1] += sums[done]
+        depth -= 1
+    return sums[0]
 
 
 @kernel

@@ -464,11 +464,17 @@ def score(
             class_name=class_name, min_score=min_score, sweep=sweep, metrics=metrics, **params,
         )  # fmt: skip
     tables, notes = [], []
+    source = result.get("external") or {}
     if all(always in metrics for always in ALWAYS):  # LaneGAP's metric: the main table
         table, notes = score_table(result)
         tables.append((score_heading(pred, gt, result), table))
+    elif source.get("lanes_read") is not None:  # a submission's frames are said without the main table too
+        notes.append(score_heading(pred, gt, result))
     others, other_notes = console_tables(metrics, result)
     tables, notes = tables + others, notes + other_notes
+    if source.get("not_computed"):
+        notes.append(f"not computed: {', '.join(source['not_computed'])} (the submission's traffic elements, "
+                     "traffic_element and topology_lcte, are not read)")  # fmt: skip
     if result.get("sweep"):
         tables.append(sweep_table(result))
     wrote = [out] if out is None or out.suffix.lower() == ".json" else [out / "metrics.json", out]
@@ -479,6 +485,13 @@ def score_heading(pred: Path, gt: Path, result: dict) -> str:
     """cli score's heading: what was scored against what, and how many frames."""
     where = f", split {', '.join(result['splits'])}" if result["splits"] else ", every frame"
     source = result.get("external") or {}
+    if source.get("lanes_read") is not None:  # an OpenLane-V2 submission
+        method = f", method {source['method']}" if source.get("method") else ""
+        ignored = source["frames_in_file"] - result["frames_predicted"]
+        return (f"{pred} (OpenLane-V2 submission{method}) against {gt}{where}: {result['frames']} frames "
+                f"scored, {result['frames_predicted']} in the submission ({source['lanes_read']} lanes), "
+                f"{result['frames_missing']} missing (scored as empty)"
+                + (f"; {ignored} of its frames, not of the split, ignored" if ignored else ""))  # fmt: skip
     if source.get("vectors_read") is None:  # our graph table
         return (f"{pred} against {gt}{where}: {result['frames']} frames scored, "
                 f"{result['frames_predicted']} predicted, {result['frames_missing']} missing")  # fmt: skip

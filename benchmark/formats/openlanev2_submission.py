@@ -7,8 +7,8 @@ data). docs/guide/score.md is the user's page; what each step does and why:
 
 - The pickle is read by a restricted unpickler: it rebuilds dicts, lists, tuples, strings, numbers and numpy
   arrays and scalars, and nothing else. Any other global (os.system, a class of the submitter's) is refused in
-  one line naming the file and the global, before anything is called; the numpy functions it admits are
-  called through stand-ins that take only the arguments numpy itself writes.
+  one line naming the file and the global, before anything is called; numpy's builders are admitted as
+  stand-ins that take only the arguments and states numpy itself writes and build the arrays themselves.
 - A frame's lanes become one AnnotatedLanes as the file holds them (OpenLane-V2's ego frame, with heights):
   what `--metric openlanev2` scores. The paper's metrics score its graph: the lanes joined where
   topology_lclc is above 0.5 (pipeline.lane_graph.scored_graph_of_annotated), clipped to the command's
@@ -54,7 +54,6 @@ NOT_COMPUTED = ("DET_t", "TOP_lt", "OLS")  # the traffic elements' scores: their
 KEY_FIELDS = ("split", "segment_id", "timestamp")
 KEY_WORDS = "(split, segment_id, timestamp), three strings"
 PICKLE_PROTOCOL = 4  # what OpenLane-V2's own io.pickle_dump writes under Python 3.8 to 3.13
-EMPTY = AnnotatedLanes([], np.zeros((0, 0)), [], np.zeros(0))
 
 
 # ---- the restricted unpickler -------------------------------------------------------------------------
@@ -514,7 +513,8 @@ def read(source: Source, options: Options, gt: GroundTruth) -> Predictions:
     predictions = submission.predictions
     lanes = {frame_id: lanes_of(predictions[key], source.path, key) for key, frame_id in scored.items()}
     frame_ids = sorted(f for f in gt.graphs if split_of.get(f) in splits)
-    predicted = [lanes.get(f, EMPTY) for f in frame_ids]
+    predicted = [lanes[f] if f in lanes else AnnotatedLanes([], np.zeros((0, 0)), [], np.zeros(0))
+                 for f in frame_ids]  # fmt: skip
     built = graphs_of(predicted, gt.rng, gt.workers)
     frames = [FramePrediction(frame_id, graph, scores, frame_lanes)
               for frame_id, (graph, scores), frame_lanes in zip(frame_ids, built, predicted)]  # fmt: skip

@@ -4,7 +4,8 @@ the result (a JSON file or a run folder); also the scoring of (pred, gt) pairs t
 The predictions are read by the reader of their format (benchmark/formats/: a graph table, or a result
 file of another codebase) into one `Predictions`: each frame to score, as the metrics take it (`Frame`), and
 what the result says of the file. The ground truth is the `graphs` table of a prepared dataset (a folder)
-or one graph-table file (benchmark/graph_table.py).
+or one graph-table file (benchmark/graph_table.py); an OpenLane-V2 prepared dataset also gives each frame its
+annotated lanes and ground plane, for the openlanev2 metric's lane path.
 """
 
 from __future__ import annotations

@@ -153,8 +153,9 @@ def relaxation(gt: Lanes, params: OpenLaneV2Params) -> np.ndarray:
 def _point_distance(a, i, b, j):
     """The Euclidean distance of points a[i] and b[j], their squared differences summed in coordinate order
     (as scipy's cdist sums them)."""
-    total = 0.0
-    for k in range(a.shape[1]):
+    dx, dy = a[i, 0] - b[j, 0], a[i, 1] - b[j, 1]
+    total = dx * dx + dy * dy
+    for k in range(2, a.shape[1]):
         d = a[i, k] - b[j, k]
         total += d * d
     return np.sqrt(total)

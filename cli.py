@@ -364,8 +364,9 @@ def eval_(
     as_json: AsJson = False,
 ) -> None:  # fmt: skip
     """Predict a split, turn the outputs into lane graphs (the model's post-processing), write
-    predictions.parquet, frame_counts.parquet and metrics.json into the run folder; a dataset prepared with
-    other target parameters than the run's is refused (stale data). Guide: docs/guide/train.md.
+    predictions.parquet, frame_counts.parquet and metrics.json into the run folder, and on OpenLane-V2 data
+    submission.pkl (OpenLane-V2's submission format); a dataset prepared with other target parameters than
+    the run's is refused (stale data). Guide: docs/guide/train.md.
 
     \b
     Examples:
@@ -393,6 +394,10 @@ def eval_(
     others, other_notes = console_tables(metrics, result)
     heading = f"{run} on {result['split']} of {result['data']}: {result['frames']} frames"
     wrote = [run / name for name in EVALUATION_FILES if (run / name).is_file()]
+    if "submission" in result:  # OpenLane-V2 data: the predictions in its submission format too
+        submission = result["submission"]
+        notes.append(f"{submission['path']}: {submission['frames']} frames in OpenLane-V2's submission "
+                     f"format; {submission['confidence']}")  # fmt: skip
     finish(result, [(heading, table), *others], wrote, as_json, notes + other_notes)
 
 

@@ -10,6 +10,9 @@ are written at the end, atomically: a failed evaluation leaves the earlier ones 
 RUN_DIR/frame_counts.parquet, written just before metrics.json, holds each frame's metric sums: the 95 %
 intervals beside each F1 come from them (benchmark/metric/bootstrap.py), and so do `cli report`'s paired ones.
 
+On OpenLane-V2 data it also writes RUN_DIR/submission.pkl, the predictions in OpenLane-V2's submission
+format (openlanev2_submission), which OpenLane-V2's own tools and `cli score` read.
+
 A dataset prepared with other target parameters than the run's training data is refused (stale data),
 and so is a damaged checkpoint or one that would need unpickling (baselines/train.py load_checkpoint).
 """
@@ -35,11 +38,15 @@ from baselines.data import PreparedDataset, collate
 from baselines.device import amp_settings, cuda_settings
 from baselines.floor import blind_floor, floor_margins
 from baselines.models import Built, build, load_config, without_pretrained_weights
+from baselines.run_folder import SUBMISSION
+from benchmark.formats.openlanev2_submission import write_submission
 from benchmark.graph_table import graphs_from_table, read_graph_table
 from benchmark.metric.bootstrap import DRAWS, add_intervals, check_draws
+from benchmark.metric.frame import Frame
+from benchmark.metric.openlanev2 import annotated_of_graph
 from benchmark.metric.params import MetricParams
 from benchmark.metric.table import ALWAYS, Metric
-from benchmark.score import score_frames, write_run
+from benchmark.score import score_frame_records, write_run
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
 from pipeline.manifest import PreparedData
@@ -133,15 +140,34 @@ def predict(built: Built, loader: DataLoader, device: torch.device, autocast_dty
     return Inference(graphs, gflops, frames - warmup_frames, net_seconds, total_seconds)
 
 
+Ground = tuple[float, float, float]  # a frame's ground plane: ground_z, a, b (z = ground_z + a x + b y)
+
+
+def ground_planes(frames: list[dict]) -> dict[str, Ground]:
+    """Each prepared frame's ground plane (frames.ground_z, ground_slope), by frame id."""
+    return {frame["frame_id"]: (float(frame["ground_z"]), *map(float, frame["ground_slope"]))
+            for frame in frames}  # fmt: skip
+
+
+def scored_frames(graphs: dict[str, LaneGraph], ground_truth: dict[str, LaneGraph], data: PreparedData,
+                  grounds: dict[str, Ground]) -> list[Frame]:  # fmt: skip
+    """Each predicted frame beside its ground truth, in frame-id order, as the metrics take it; on OpenLane-V2
+    data with its annotated lanes and its ground plane, which the openlanev2 metric scores the predicted
+    graph's lanes (with heights from that plane) against, as `cli score` does."""
+    frame_ids = sorted(graphs)
+    if data.kind != "openlanev2":
+        return [Frame(graphs[frame_id], ground_truth[frame_id]) for frame_id in frame_ids]
+    lanes = io.read_annotated_lanes(data.path, frame_ids)
+    return [Frame(graphs[f], ground_truth[f], gt_lanes=lanes[f], ground=grounds[f]) for f in frame_ids]
+
+
 def score_predictions(
-    graphs: dict[str, LaneGraph], ground_truth: dict[str, LaneGraph], params: MetricParams, bootstrap: int,
-    metrics: tuple[Metric, ...] = ALWAYS,
+    frames: list[Frame], params: MetricParams, bootstrap: int, metrics: tuple[Metric, ...] = ALWAYS
 ) -> tuple[dict, np.ndarray]:  # fmt: skip
-    """The scores of the predicted frames (by frame id) with a 95 % interval beside each F1 from
+    """The scores of the predicted frames (scored_frames) with a 95 % interval beside each F1 from
     `bootstrap` draws over them, and each frame's counts (FRAME_COUNTS, for `cli report`'s paired
     intervals); `metrics` adds the other published ones (benchmark/metric/table.py)."""
-    pairs = [(graphs[frame_id], ground_truth[frame_id]) for frame_id in sorted(graphs)]
-    scores, frame_counts = score_frames(pairs, params, metrics=metrics)
+    scores, frame_counts = score_frame_records(frames, params, metrics=metrics)
     add_intervals(scores, frame_counts, bootstrap)
     return scores, frame_counts
 
@@ -164,6 +190,34 @@ def floor_scores(
     )  # fmt: skip
     floor["margin"] = floor_margins({**metrics, "floor": floor}) if floor["f1"] else None
     return floor
+
+
+# What a submission's confidences are: no model's post-processing (Built.to_graphs) gives its lanes' scores.
+UNSCORED = ("every lane's confidence is 1.0 (the model's post-processing keeps no scores), which makes "
+            "OpenLane-V2's DET_l one point of its precision-recall curve")  # fmt: skip
+
+
+def openlanev2_submission(run_dir: Path, graphs: dict[str, LaneGraph], grounds: dict[str, Ground],
+                          data: PreparedData, method: str) -> dict | None:  # fmt: skip
+    """On OpenLane-V2 data RUN_DIR/submission.pkl (written atomically): each predicted frame's graph as
+    OpenLane-V2's lanes under its submission key (pipeline.io.read_openlanev2_keys), their heights from the
+    frame's ground plane, links from the graph, confidences 1.0 (UNSCORED), no traffic elements; returns what
+    metrics.json says of it. On other data None, and an earlier evaluation's submission is removed: the
+    folder holds one evaluation, which that file would not match."""
+    path = run_dir / SUBMISSION
+    if data.kind != "openlanev2":
+        path.unlink(missing_ok=True)
+        return None
+    keys = io.read_openlanev2_keys(data.path)
+    unknown = sorted(set(graphs) - set(keys))
+    if unknown:
+        raise ValueError(f"{data.path}: frame {unknown[0]} has no OpenLane-V2 key (split, segment, timestamp)"
+                         f"{f' (and {len(unknown) - 1} more)' if len(unknown) > 1 else ''}")  # fmt: skip
+    lanes = {keys[frame_id]: annotated_of_graph(graph, grounds[frame_id], None)
+             for frame_id, graph in graphs.items()}  # fmt: skip
+    write_submission(path, method, lanes)
+    return {"path": str(path), "method": method, "frames": len(lanes),
+            "lanes": sum(len(frame.points) for frame in lanes.values()), "confidence": UNSCORED}  # fmt: skip
 
 
 def evaluate(
@@ -203,9 +257,9 @@ def evaluate(
     # `cli score` scores every frame of the ground truth; here only the frames of this split.
     ground_truth = graphs_from_table(read_graph_table(data.path), data.path)
     metric_params = MetricParams(bev_range=data.bev_range)
-    scores, frame_counts = score_predictions(
-        inference.graphs, ground_truth, metric_params, bootstrap, metrics
-    )
+    grounds = ground_planes(dataset.frames)
+    frames = scored_frames(inference.graphs, ground_truth, data, grounds)
+    scores, frame_counts = score_predictions(frames, metric_params, bootstrap, metrics)
     scores.update(
         pred=str(run_dir / "predictions.parquet"), gt=str(data.path), frames_predicted=len(inference.graphs)
     )
@@ -230,6 +284,9 @@ def evaluate(
         metrics["floor"] = floor_scores(
             metrics, inference.graphs, ground_truth, dataset, config, metric_params, data
         )
+    submission = openlanev2_submission(run_dir, inference.graphs, grounds, data, f"lanegraph {config.model}")
+    if submission is not None:
+        metrics["submission"] = submission
     metrics["config"] = config.to_dict()
     write_run(run_dir, inference.graphs, frame_counts, metrics, run.get("targets", {}))
     return metrics

@@ -98,8 +98,21 @@ def run_config(options: TrainOptions) -> tuple[Config, Path, set[str]]:
                                 options.aux_seg, str(pretrained) if pretrained else None, options.overrides(),
                                 options.model or "lanegap", options.accumulate,
                                 options.from_scratch)  # fmt: skip
-    check_modality(config, PreparedData.open(data), options)
+    prepared = PreparedData.open(data)
+    check_modality(config, prepared, options)
+    check_images(config, prepared)
     return config, data, told
+
+
+def check_images(config: Config, data: PreparedData) -> None:
+    """Training reads every frame's images: a dataset with frames whose images are absent (cli prepare counts
+    them, PreparedData.frames_without_images) is refused in one line, before any work."""
+    missing = data.frames_without_images
+    if config.encoder.modality == "lidar" or not missing:
+        return
+    raise ValueError(f"{data.path}: {missing} frame(s) of this prepared {data.kind} dataset lack their "
+                     f"images under {data.sensor_root} (manifest.json: frames_without_images); add them and "
+                     "prepare it again with --overwrite")  # fmt: skip
 
 
 def check_modality(config: Config, data: PreparedData, options: TrainOptions) -> None:

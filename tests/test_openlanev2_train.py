@@ -8,8 +8,11 @@ The refusals and settings run on the toy prepared dataset of test_baselines_trai
 from __future__ import annotations
 
 import json
+import os
+import shutil
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pytest
 from test_baselines_train import write_toy_dataset
@@ -124,3 +127,112 @@ def test_the_loader_resizes_each_rigs_images_by_its_settings(tmp_path, names, si
     config = resolve_config("paper")
     sample = PreparedDataset(PreparedData.open(data), "train", config)[0]
     assert [tuple(s) for s in sample.image_sizes] == [size, size]
+
+
+# ------------------------------------------------------------------------------------- end to end, cli synth
+
+
+@pytest.fixture(scope="module")
+def synth_root(tmp_path_factory) -> Path:
+    """`cli synth`'s smallest dataset with sensors: one train and one val log of 2 frames each, whose
+    OpenLane-V2 layout (subset A, from its AV2 logs) is OUT/openlanev2."""
+    raw = tmp_path_factory.mktemp("openlanev2_train") / "raw"
+    args = ["--logs", 2, "--frames-per-log", 2, "--val-frames-per-log", 2, "--worlds", 2]
+    result = cli("synth", "--out", raw, *args)
+    assert result.exit_code == 0, result.output
+    return raw
+
+
+def test_synth_prepare_train_eval_score_report_on_openlanev2(synth_root, tmp_path):
+    """cli synth -> prepare --dataset openlanev2 -> train (camera, its default) -> eval (RUN/submission.pkl)
+    -> score the submission -> report's OpenLane-V2 section. The run keeps every path (score threshold 0),
+    so that the submission holds lanes: cli score reads the lanes that cli eval scored, to the same DET_l and
+    TOP_ll, with heights on each frame's ground plane."""
+    data, run, scored, report = (tmp_path / name for name in ("data", "run", "scored", "report"))
+    prepared = cli("prepare", "--dataset", "openlanev2", "--root", synth_root / "openlanev2", "--out", data,
+                   "--range", "50x100")  # fmt: skip
+    assert prepared.exit_code == 0, prepared.output
+    assert PreparedData.open(data).kind == "openlanev2" and PreparedData.open(data).frames_without_images == 0
+
+    trained = cli("train", "--data", data, "--out", run, "--preset", "tiny", "--epochs", 1, "--path-points",
+                  10, "--eval-frames", 1, "--set", "decoder.score_threshold=0.0")  # fmt: skip
+    assert trained.exit_code == 0, trained.output
+    assert "lanegap (tiny, camera) trained on" in trained.output
+    assert json.loads((run / "config.json").read_text())["encoder"]["modality"] == "camera"
+
+    evaluated = cli("eval", "--run", run, "--device", "cpu", "--no-floor", "--bootstrap", 0, "--metric",
+                    "lanegap,openlanev2")  # fmt: skip
+    assert evaluated.exit_code == 0, evaluated.output
+    submission = run / "submission.pkl"
+    assert f"{submission}: 2 frames in OpenLane-V2's submission format" in evaluated.output
+    assert "DET_l one point of its precision-recall curve" in evaluated.output
+    assert str(submission) in evaluated.output.splitlines()[-1]  # the `wrote` line
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["submission"]["path"] == str(submission) and metrics["submission"]["frames"] == 2
+    assert metrics["submission"]["lanes"] > 0
+    check_submission(submission, data, metrics["submission"]["lanes"])
+
+    score = cli("score", "--pred", submission, "--gt", data, "--metric", "lanegap,openlanev2", "--out",
+                scored, "--bootstrap", 0, "--json")  # fmt: skip
+    assert score.exit_code == 0, score.output
+    result = json.loads(score.stdout)
+    assert result["frames"] == 2 and result["external"]["format"] == "openlanev2"
+    assert result["external"]["lanes_read"] == metrics["submission"]["lanes"]
+    for name in ("det_l", "top_ll"):  # the same lanes, read back from the file
+        assert result["openlanev2"][name] == pytest.approx(metrics["openlanev2"][name], abs=1e-12), name
+
+    reported = cli("report", "--runs", run, "--runs", scored, "--out", report, "--reference", "paper",
+                   "--bootstrap", 0)  # fmt: skip
+    assert reported.exit_code == 0, reported.output
+    section = (report / "report.md").read_text().partition("## OpenLane-V2")[2]
+    assert "| run | LaneGAP | camera | val split | 2 |" in section
+    assert "OpenLane-V2 submission `lanegraph lanegap` (external)" in section
+
+
+def check_submission(path: Path, data: Path, lanes: int) -> None:
+    """The pickle as OpenLane-V2 reads it: the val frames' keys, each lane's 11 points on its frame's ground
+    plane (OpenLane-V2's ego frame: x forward, y left), confidences 1.0, topology_lclc (k, k) of 0/1, no
+    traffic element and a (k, 0) topology_lcte."""
+    from benchmark.formats.openlanev2_submission import load_pickle
+
+    payload = load_pickle(path)
+    assert payload["method"] == "lanegraph lanegap"
+    columns = ["frame_id", "split", "ground_z", "ground_slope"]
+    frames = io.read_table(data, "frames", columns=columns).to_pylist()
+    keys = io.read_openlanev2_keys(data)
+    val = {keys[f["frame_id"]]: f for f in frames if f["split"] == "val"}
+    assert set(payload["results"]) == set(val) and len(val) == 2
+    assert sum(len(r["predictions"]["lane_centerline"]) for r in payload["results"].values()) == lanes
+    for key, result in payload["results"].items():
+        predictions, ground = result["predictions"], val[key]
+        count = len(predictions["lane_centerline"])
+        for lane in predictions["lane_centerline"]:
+            points = lane["points"]
+            assert points.shape == (11, 3) and lane["confidence"] == 1.0
+            x_bev, y_bev = -points[:, 1], points[:, 0]
+            a, b = ground["ground_slope"]
+            assert np.allclose(points[:, 2], ground["ground_z"] + a * x_bev + b * y_bev, atol=1e-5)
+            assert np.all(np.abs(x_bev) <= 25 + 1e-6) and np.all(np.abs(y_bev) <= 50 + 1e-6)
+        links = predictions["topology_lclc"]
+        assert links.shape == (count, count) and set(np.unique(links)) <= {0.0, 1.0}
+        assert predictions["traffic_element"] == [] and predictions["topology_lcte"].shape == (count, 0)
+        assert len({lane["id"] for lane in predictions["lane_centerline"]}) == count
+
+
+def test_train_refuses_a_dataset_whose_frames_lack_images_in_one_line(synth_root, tmp_path):
+    """A frame file naming an image that is absent is prepared (cli prepare counts it); training on the
+    dataset is refused in one line naming it and the count, before any work."""
+    root, data, out = tmp_path / "openlanev2", tmp_path / "data", tmp_path / "run"
+    shutil.copytree(synth_root / "openlanev2", root, copy_function=os.link)
+    images = sorted((root / "train").glob("*/image/ring_front_center/*.jpg"))
+    assert len(images) == 2
+    images[0].unlink()  # one camera of one frame
+    prepared = cli("prepare", "--dataset", "openlanev2", "--root", root, "--out", data)
+    assert prepared.exit_code == 0, prepared.output
+    assert PreparedData.open(data).frames_without_images == 1
+    for modality in ("camera", None):
+        args = ["--modality", modality] if modality else []
+        result = cli("train", "--data", data, "--out", out, "--preset", "tiny", *args)
+        line = one_error_line(result, str(data), "1 frame(s)", "openlanev2", "lack their images", str(root))
+        assert line.startswith(f"error: {data}:")
+        assert not out.exists()

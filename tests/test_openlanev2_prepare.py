@@ -422,3 +422,20 @@ def test_cli_synth_openlanev2_prepares_as_its_av2_logs(tmp_path):
             assert mine["intrinsics"] == theirs["intrinsics"]
             image = raw / "openlanev2" / mine["image_path"]
             assert image.read_bytes() == (raw / "av2" / "sensor" / theirs["image_path"]).read_bytes()
+
+
+def test_a_malformed_file_in_a_worker_process_is_the_same_one_line(tmp_path):
+    """With --workers, a worker's DataError reaches prepare whole (it pickles with its three parts): before,
+    the pool could not rebuild it and waited for ever."""
+    import pickle
+
+    error = DataError("f.json", "pose", "is wrong")
+    again = pickle.loads(pickle.dumps(error))
+    assert (type(again), str(again), again.source, again.record) == (DataError, str(error), "f.json", "pose")
+    root = tmp_path / "olv2"
+    segment(root, "00001", 2)
+    paths = segment(root, "00002", 2)
+    paths[1].write_text("{")
+    with pytest.raises(DataError, match=rf"^{paths[1]}: JSON: cannot be read: "):
+        run(root, tmp_path / "out", workers=2)
+    assert run(root, tmp_path / "out", workers=2, on_error="skip", overwrite=True)["frames"] == 3

@@ -236,3 +236,15 @@ def test_train_refuses_a_dataset_whose_frames_lack_images_in_one_line(synth_root
         line = one_error_line(result, str(data), "1 frame(s)", "openlanev2", "lack their images", str(root))
         assert line.startswith(f"error: {data}:")
         assert not out.exists()
+
+
+def test_an_evaluation_on_other_data_removes_an_earlier_submission(tmp_path):
+    """A run folder holds one evaluation: evaluated on AV2 data, an earlier evaluation's submission.pkl (which
+    would not match the new metrics.json) goes, and none is written."""
+    from baselines.evaluate import openlanev2_submission
+
+    (tmp_path / "submission.pkl").write_bytes(b"an earlier evaluation's")
+    (tmp_path / "notes.txt").write_text("the user's")
+    av2 = PreparedData(tmp_path / "data", {"dataset": "av2"})
+    assert openlanev2_submission(tmp_path, {}, {}, av2, "lanegraph lanegap") is None
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["notes.txt"]

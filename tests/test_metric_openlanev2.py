@@ -3,8 +3,9 @@ reference's definition written here, on hand-made graphs with values worked out 
 
 The slow reading follows `openlanev2/centerline/evaluation/` of OpenDriveLab/OpenLane-V2 (v1.1+) step by
 step, in pure Python: the full distance matrix with its Chamfer mask and 1024 fill, the recursive discrete
-Fréchet distance, the matching by confidence, the 11-point AP on its float32 recalls, and TOP_ll's carried
-adjacency. Ties are taken as the module's `ties` parameter says (Python's sort is stable).
+Fréchet distance, the matching by confidence, the 11-point AP in float32 with the recall steps compared in
+float32 (the reference's pinned numpy 1.23), and TOP_ll's carried adjacency with each lane's AP from float32
+precisions. Ties are taken as the module's `ties` parameter says (Python's sort is stable).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from benchmark.metric.params import OPENLANEV2_VERSION, OpenLaneV2Params
 from pipeline.io import read_table
 from pipeline.lane_graph import LaneGraph
 
+F32 = np.float32
 EPS32 = float(np.finfo(np.float32).eps)
 STEPS = np.arange(0, 1 + 1e-3, 0.1).tolist()  # the reference's recall steps, its very floats
 
@@ -119,12 +121,13 @@ def slow_chamfer(gt, pred) -> float:
     return (sum(to_gt) / len(to_gt) + sum(to_pred) / len(to_pred)) / 2
 
 
-def slow_lane_ap(truth: set, picked: list, grouped: bool) -> float:
-    """AP of one lane's links: picked is [(column, confidence)] in column order."""
+def slow_lane_ap(truth: set, picked: list, grouped: bool) -> tuple[float, bool]:
+    """(AP of one lane's links, whether it was ranked rather than a plain 0 or 1): picked is [(column,
+    confidence)] in column order; each precision a float32 quotient, their sum rounded to float32."""
     if not truth and not picked:
-        return 1.0
+        return 1.0, False
     if not truth or not picked:
-        return 0.0
+        return 0.0, False
     ranked = sorted(picked, key=lambda p: -p[1])
     hits, count, total = 0, 0, 0.0
     if grouped:
@@ -132,13 +135,13 @@ def slow_lane_ap(truth: set, picked: list, grouped: bool) -> float:
             group = list(group)
             new = sum(1 for column, _ in group if column in truth)
             hits, count = hits + new, count + len(group)
-            total += new * (hits / count)
+            total += new * float(F32(hits) / F32(count))
     else:
         for count, (column, _) in enumerate(ranked, 1):
             if column in truth:
                 hits += 1
-                total += hits / count
-    return total / len(truth)
+                total += float(F32(hits) / F32(count))
+    return float(F32(total)) / len(truth), True
 
 
 def slow_carried(a: int, b: int, match: dict, p_links: set, g_links: set) -> float:
@@ -183,23 +186,27 @@ def slow_frame(pred: LaneGraph, gt: LaneGraph, params: OpenLaneV2Params, scores=
             truth = {a for a in range(n) if (a, b) in g_links}
             lane_aps.append(slow_lane_ap(truth, [(a, carried[a][b]) for a in range(n) if carried[a][b] > 0.5],
                                          grouped))  # fmt: skip
-    return {"conf": p_conf, "tp": tps, "n_gt": len(g_lanes), "lane_aps": lane_aps}
+    return {"conf": p_conf, "tp": tps, "n_gt": len(g_lanes), "lane_aps": [a for a, _ in lane_aps],
+            "ranked": any(r for _, r in lane_aps)}  # fmt: skip
 
 
-def slow_ap(conf, tp, n_gt, grouped) -> float:
-    if not tp:
-        return 1.0 if n_gt == 0 else 0.0
+def slow_ap(conf, tp, n_gt, grouped) -> np.float32:
+    """The 11-point AP in float32, the recall steps compared in float32 (numpy 1.23 casts the float64 step to
+    the float32 recall's dtype)."""
+    if not tp and n_gt == 0:
+        return F32(1)
     ranked = sorted(zip(conf, tp), key=lambda c: -c[0])
     curve, hits = [], 0
     for k, (c, hit) in enumerate(ranked, 1):
         hits += hit
         if not grouped or k == len(ranked) or ranked[k][0] != c:
-            recall = np.float32(hits) / np.maximum(np.float32(n_gt), np.float32(EPS32))  # float32, as there
-            curve.append((float(recall), hits / k))
-    total = 0.0
+            curve.append((F32(hits) / F32(max(n_gt, EPS32)), F32(hits) / F32(k)))
+    total = F32(0)
     for step in STEPS:
-        total += max([p for r, p in curve if r >= step], default=0.0)
-    return total / 11
+        reached = [p for r, p in curve if r >= F32(step)]
+        if reached:
+            total = F32(total + max(reached))
+    return F32(total / F32(11))
 
 
 def slow_scores(frames: list[dict], params: OpenLaneV2Params) -> dict:
@@ -208,7 +215,14 @@ def slow_scores(frames: list[dict], params: OpenLaneV2Params) -> dict:
     n_gt = sum(f["n_gt"] for f in frames)
     by = [slow_ap(conf, [t for f in frames for t in f["tp"][k]], n_gt, grouped) for k in range(3)]
     aps = [a for f in frames for a in f["lane_aps"]]
-    return {"det_l": sum(by) / 3, "det_l_by_threshold": by, "top_ll": sum(aps) / len(aps) if aps else 0.0}
+    if not aps:
+        top = 0.0
+    elif any(f["ranked"] for f in frames):  # the reference's mean: float64 with a ranked AP, else float32
+        top = math.fsum(aps) / len(aps)
+    else:
+        top = float(F32(sum(aps)) / F32(len(aps)))
+    return {"det_l": float(np.asarray(by, np.float32).mean()), "det_l_by_threshold": [float(b) for b in by],
+            "top_ll": top}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -337,7 +351,7 @@ def test_a_frame_without_ground_truth_links():
     # a fork where the first ends: the second (Fréchet 0.5 m) and a false lane that matches nothing
     forked = graph([(0, 0), (0, 10)], [(0, 10), (0, 20)], [(0, 10), (5, 20)])
     result = score([(forked, gt)])
-    assert result["det_l"] == pytest.approx(2 / 3, abs=1e-12)  # one point: recall 1, precision 2/3
+    assert result["det_l"] == pytest.approx(2 / 3, abs=1e-6)  # one point: recall 1, precision 2/3 (float32)
     # the first lane's successors and the second's predecessors hold a false link: AP 0; the others 1
     assert result["top_ll"] == pytest.approx(0.5, abs=1e-12)
 
@@ -364,16 +378,19 @@ def test_distinct_confidences_walk_the_curve():
     pred = graph([(0, 0), (0, 10)], [(-10, 0), (-10, 10)], [(10, 0), (10, 10)])
     result = score([(pred, gt)], scores=[[0.9, 0.8, 0.7]])
     # true (R 1/2, P 1), false (1/2, 1/2), true (1, 2/3): steps 0..0.5 take 1, steps 0.6..1 take 2/3
-    assert result["det_l"] == pytest.approx(28 / 33, abs=1e-12)
+    assert result["det_l"] == pytest.approx(28 / 33, abs=1e-6)  # float32, as the reference's
     assert result["confidences"] == SCORED and "note" not in result
 
 
-@pytest.mark.parametrize(("found", "expected"), [(7, 7 / 11), (3, 4 / 11)])
-def test_recall_is_read_in_float32_against_the_reference_steps(found, expected):
+@pytest.mark.parametrize(("found", "expected"), [(7, 8 / 11), (9, 10 / 11), (3, 4 / 11)])
+def test_recall_is_compared_in_float32_as_the_reference_s_numpy_compares_it(found, expected):
     gt = graph(*[[(4 * k - 18, 0), (4 * k - 18, 10)] for k in range(10)])
     pred = graph(*[[(4 * k - 18, 0), (4 * k - 18, 10)] for k in range(found)])
-    # float32(0.7) = 0.69999999 < 0.7000000000000001; float32(0.3) = 0.30000001 >= 0.30000000000000004
-    assert score([(pred, gt)])["det_l"] == pytest.approx(expected, abs=1e-12)
+    # OpenLane-V2 pins numpy < 1.24, which casts each float64 step to the float32 recall's dtype: a recall of
+    # float32(0.7) = 0.69999999 reaches float32(0.7000000000000001), the same float, so steps 0..0.7 take
+    # precision 1 (numpy 2, comparing in float64, gives 7 / 11, as version 1 of this path did); 0.9 likewise;
+    # float32(0.3) = 0.30000001 reaches its step either way
+    assert score([(pred, gt)])["det_l"] == pytest.approx(expected, abs=1e-6)
 
 
 def test_top_ll_carries_the_predicted_links_onto_the_matched_lanes():
@@ -383,9 +400,21 @@ def test_top_ll_carries_the_predicted_links_onto_the_matched_lanes():
     # where the ground truth has none is a false link at 0.5 + eps: rows A..D 1/4 (tie) or 1/2 (B first),
     # 0, 0, 0; columns 0, 1, 0, 0
     result = score([(pred, gt)])
-    assert result["det_l"] == pytest.approx(8 / 11, abs=1e-12)  # recall 3/4 at precision 1
+    assert result["det_l"] == pytest.approx(8 / 11, abs=1e-6)  # recall 3/4 at precision 1
     assert result["top_ll"] == pytest.approx(1.25 / 8, abs=1e-12)
     assert score([(pred, gt)], OpenLaneV2Params(ties="order"))["top_ll"] == pytest.approx(1.5 / 8, abs=1e-12)
+
+
+def test_version_2_is_recorded_and_a_version_1_result_still_reads():
+    from benchmark.metric.openlanev2_entry import console_tables, report_row
+
+    # version 2: the graph path's DET_l and TOP_ll in the reference's float32 (version 1 read the recall
+    # steps as numpy 2 does); a result written by version 1 has the same form and still shows
+    result = score([(FORK, FORK)])
+    assert result["version"] == OPENLANEV2_VERSION == 2
+    old = json.loads(json.dumps({**result, "version": 1}))
+    tables, notes = console_tables(old)
+    assert len(tables) == 1 and report_row(old) == report_row(result) == ["100.0", "100.0"]
 
 
 def test_params_are_checked_and_recorded():
@@ -471,5 +500,10 @@ def test_frame_order_and_worker_processes_play_no_part(generated):
     frames = [pickle.loads(pickle.dumps(f)) for f in frames]  # as they come back from worker processes
     result = openlanev2_result(frames)
     order = np.random.default_rng(2).permutation(len(frames))
-    assert openlanev2_result([frames[i] for i in order]) == result
+    shuffled = openlanev2_result([frames[i] for i in order])
+    # TOP_ll's mean is numpy's, in frame order as the reference takes it: another order moves its last bits
+    top, shuffled_top = result.pop("top_ll_by_threshold"), shuffled.pop("top_ll_by_threshold")
+    assert shuffled.pop("top_ll") == pytest.approx(result.pop("top_ll"), abs=1e-15)
+    assert list(shuffled_top.values()) == pytest.approx(list(top.values()), abs=1e-15)
+    assert shuffled == result
     json.dumps(result)

@@ -7,7 +7,6 @@ submission's lanes or a graph's (annotated_of_graph), as OpenLane-V2's code scor
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,16 +31,17 @@ from pipeline.records import AnnotatedLanes
 # - Matching at threshold t. Predictions in decreasing confidence: one whose nearest GT lane (the first on
 #   ties) is closer than t is a true positive if that lane is not taken yet, else a false positive; a
 #   prediction never falls back to its second-nearest GT lane.
-# - DET_l. Over all frames, predictions in decreasing confidence: recall (in float32, as there) and
-#   precision; the AP is the mean over the recall steps 0, 0.1, ..., 1.0 (np.arange's floats) of the best
-#   precision at a recall >= the step, 0 where none; DET_l is the mean of the AP at t = 1, 2, 3 m. No lane at
-#   all on either side: AP 1.
+# - DET_l. Over all frames, predictions in decreasing confidence: recall and precision as float32 quotients;
+#   the AP is the float32 sum over the recall steps 0, 0.1, ..., 1.0 of the best precision at a recall >= the
+#   step (0 where none), over 11; DET_l is the float32 mean of the AP at t = 1, 2, 3 m. No lane at all on
+#   either side: AP 1.
 # - TOP_ll. Per threshold and frame with GT lanes: the predicted adjacency carried over onto the GT lanes
 #   through the matching; a GT entry no matched pair covers is 0 where the GT has a link and a false link
 #   of confidence 0.5 + float32 eps where it has none. Each GT lane's row (successors) and column
 #   (predecessors) gives an AP: the predicted entries above 0.5 ranked by confidence, the sum of the
-#   precision at each true one over the number of true ones (1 when both sides are empty, 0 when one is).
-#   TOP_ll is the mean of all those APs over the thresholds and frames.
+#   float32 precision at each true one, rounded to float32, over the number of true ones (1 when both sides
+#   are empty, 0 when one is). TOP_ll is the mean of all those APs over the thresholds and frames, in
+#   float32 when every AP is a plain 0 or 1 (the reference's mixed scalars), else in float64.
 # - Ties (equal confidences). `ties="threshold"` (the default) makes equal confidences one threshold of the
 #   curve (precision and recall are read where the tie ends), so no score depends on the order of lanes or
 #   frames, and with every confidence 1.0 each AP is one point of its curve. `ties="order"` walks them in
@@ -49,14 +49,15 @@ from pipeline.records import AnnotatedLanes
 #   default sort does not promise to: on AVX-512 machines it reorders them). The matching always gives a
 #   GT lane to the lowest-index prediction among equals.
 
-# The recall steps of the 11-point AP, exactly the floats OpenLane-V2 compares with (0.30000000000000004,
-# 0.7000000000000001, ...): recall is rounded to float32 first, as there, so a recall of exactly 0.7 falls
-# short of its step while 0.3 reaches its own.
+# The recall steps of the 11-point AP, OpenLane-V2's np.arange floats. Its pinned numpy (1.23) compares the
+# float32 recall with each step cast to float32, so a recall of exactly 0.7 or 0.9 reaches its step, which
+# numpy 2 (comparing in float64 with 0.7000000000000001) would not: both paths read it as numpy 1.23 does.
 RECALL_STEPS = np.arange(0.0, 1.0 + 1e-3, 0.1)
 # A predicted link counts when its confidence is above this (THRESHOLD_RELATIONSHIP_CONFIDENCE).
 RELATIONSHIP_THRESHOLD = 0.5
+EPS32 = np.finfo(np.float32).eps
 # A GT non-link that no matched pair of predictions covers becomes a false link of this confidence.
-UNCOVERED_CONFIDENCE = 0.5 + float(np.finfo(np.float32).eps)
+UNCOVERED_CONFIDENCE = 0.5 + float(EPS32)
 
 NO_SCORE = "1.0 for every lane (the format carries no score)"
 SCORED = "the prediction's scores"
@@ -311,12 +312,12 @@ def greedy_match(order, nearest, best, threshold, n_gt):
 
 
 @kernel
-def lane_aps(truth, confidence, threshold, grouped, float32):
-    """Each row's AP: the columns with `truth` against those with `confidence` above `threshold`, ranked
-    by decreasing confidence (ties in column order): the sum of the precision at each true one over
-    their number; 1 when both are empty, 0 when one is. `grouped`: a tie is read where it ends.
-    `float32`: as the reference computes it, each precision a float32 quotient, their sum rounded to
-    float32 (numpy's dot of float32 vectors: a double sum, rounded), divided by the number in float64."""
+def lane_aps(truth, confidence, threshold, grouped):
+    """Each row's AP as the reference computes it: the columns with `truth` against those with `confidence`
+    above `threshold`, ranked by decreasing confidence (ties in column order): the sum of the precision at
+    each true one over their number; 1 when both are empty, 0 when one is. Each precision is a float32
+    quotient, their sum rounded to float32 (numpy's dot of float32 vectors: a double sum, rounded), divided
+    by the number in float64. `grouped`: a tie is read where it ends."""
     out = np.empty(truth.shape[0])
     for i in range(truth.shape[0]):
         n_true = 0
@@ -332,9 +333,7 @@ def lane_aps(truth, confidence, threshold, grouped, float32):
         for k in range(len(order)):
             hit = truth[i, picked[order[k]]]
             hits += hit
-            precision = hits / (k + 1)
-            if float32:
-                precision = np.float64(np.float32(hits) / np.float32(k + 1))
+            precision = np.float64(np.float32(hits) / np.float32(k + 1))
             if not grouped:
                 if hit:
                     total += precision
@@ -343,14 +342,12 @@ def lane_aps(truth, confidence, threshold, grouped, float32):
             if k + 1 == len(order) or score[order[k + 1]] != score[order[k]]:
                 total += pending * precision
                 pending = 0
-        if float32:
-            total = np.float64(np.float32(total))
-        out[i] = total / n_true
+        out[i] = np.float64(np.float32(total)) / n_true
     return out
 
 
 # ---------------------------------------------------------------------------------------------------
-# A frame and a set of frames
+# A frame and a set of frames (both paths)
 
 
 def _flat(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -358,6 +355,32 @@ def _flat(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     and where each lane starts."""
     lanes, n, dims = points.shape
     return np.ascontiguousarray(points.reshape(lanes * n, dims)), np.arange(lanes + 1, dtype=np.int64) * n
+
+
+def matched_links(
+    order, nearest, best, truth: np.ndarray, pred_links: np.ndarray, params: OpenLaneV2Params
+) -> dict:
+    """Per threshold: each prediction's true-positive flag (the matching in `order`) and the AP of each GT
+    lane's successors, then predecessors (the predicted links `pred_links` carried onto the GT lanes, whose
+    links are `truth`, 0 or 1), with whether the reference ranks that AP (a float64 there) rather than
+    returning a plain float32 0 or 1."""
+    n_gt, grouped = len(truth), params.ties == "threshold"
+    tp = np.zeros((len(params.thresholds), len(order)), bool)
+    aps = np.zeros((len(params.thresholds), 2 * n_gt))
+    ranked = np.zeros((len(params.thresholds), 2 * n_gt), bool)
+    for k, threshold in enumerate(params.thresholds):
+        tp[k], match = greedy_match(order, nearest, best, threshold, n_gt)
+        if not n_gt:
+            continue
+        # the predicted links on the GT lanes, through the matching; uncovered entries as there
+        carried = (1.0 - truth) * UNCOVERED_CONFIDENCE
+        matched = np.flatnonzero(match >= 0)
+        carried[np.ix_(match[matched], match[matched])] = pred_links[np.ix_(matched, matched)]
+        for side, (t, c) in enumerate(((truth, carried), (truth.T, carried.T))):
+            t, c = np.ascontiguousarray(t), np.ascontiguousarray(c)
+            aps[k, side * n_gt : (side + 1) * n_gt] = lane_aps(t, c, RELATIONSHIP_THRESHOLD, grouped)
+            ranked[k, side * n_gt : (side + 1) * n_gt] = (t.sum(1) > 0) & (c > RELATIONSHIP_THRESHOLD).any(1)
+    return {"tp": tp, "lane_aps": aps, "ranked": ranked}
 
 
 def openlanev2_frame(
@@ -372,55 +395,72 @@ def openlanev2_frame(
         *_flat(g.points), *_flat(p.points), relaxation(g, params), max(params.thresholds), False
     )
     order = np.argsort(-p.confidence, kind="stable")
-    truth = g.adjacency.astype(np.int64)
-    grouped = params.ties == "threshold"
-    tp = np.zeros((len(params.thresholds), p.n), bool)
-    aps = np.zeros((len(params.thresholds), 2 * g.n))
-    for k, threshold in enumerate(params.thresholds):
-        tp[k], match = greedy_match(order, nearest, best, threshold, g.n)
-        if not g.n:
-            continue
-        # the predicted adjacency on the GT lanes, through the matching; uncovered entries as there
-        carried = (1.0 - g.adjacency) * UNCOVERED_CONFIDENCE
-        matched = np.flatnonzero(match >= 0)
-        carried[np.ix_(match[matched], match[matched])] = p.adjacency[np.ix_(matched, matched)]
-        aps[k, : g.n] = lane_aps(truth, carried, RELATIONSHIP_THRESHOLD, grouped, False)
-        aps[k, g.n :] = lane_aps(
-            np.ascontiguousarray(truth.T),
-            np.ascontiguousarray(carried.T),
-            RELATIONSHIP_THRESHOLD,
-            grouped,
-            False,
-        )
     return {
         "n_gt": g.n,
         "confidence": p.confidence,
-        "tp": tp,
-        "lane_aps": aps,
+        **matched_links(order, nearest, best, g.adjacency.astype(np.int64), p.adjacency, params),
         "scored": pred_scores is not None,
         "params": params.to_dict(),
     }
 
 
-def average_precision(confidence: np.ndarray, tp: np.ndarray, n_gt: int, grouped: bool) -> float:
-    """The 11-point AP of predictions (confidence, tp flag) against n_gt GT lanes, walked in decreasing
-    confidence (ties in the given order; `grouped`: a tie is one point of the curve)."""
-    if not len(tp):
-        return 1.0 if n_gt == 0 else 0.0
+def average_precision(confidence: np.ndarray, tp: np.ndarray, n_gt: int, grouped: bool) -> np.float32:
+    """The reference's _AP and _pr_curve: the 11-point AP of predictions (confidence, tp flag) against n_gt GT
+    lanes, walked in decreasing confidence (ties in the given order; `grouped`: a tie is one point of the
+    curve), in float32 as there, the recall steps compared in float32 as its numpy 1.23 compares them."""
+    if not len(tp) and n_gt == 0:
+        return np.float32(1)
     order = np.argsort(-confidence, kind="stable")
-    hits = np.cumsum(tp[order])
-    count = np.arange(1, len(tp) + 1)
-    if grouped:
+    hits = np.cumsum(tp[order]).astype(np.float32)
+    count = np.arange(1, len(tp) + 1).astype(np.float32)
+    if grouped and len(tp):
         ranked = confidence[order]
         ends = np.flatnonzero(np.append(ranked[1:] != ranked[:-1], True))
         hits, count = hits[ends], count[ends]
-    recall = (hits / max(n_gt, 1)).astype(np.float32).astype(np.float64)  # float32, as there
-    best_after = np.maximum.accumulate((hits / count)[::-1])[::-1]  # best precision from each point on
-    first = np.searchsorted(recall, RECALL_STEPS, "left")  # recall never falls along the walk
-    total = 0.0
-    for at in first:
-        total += best_after[at] if at < len(recall) else 0.0
-    return total / len(RECALL_STEPS)
+    recall = hits / np.float32(max(n_gt, EPS32))
+    precision = hits / count
+    total = np.float32(0)
+    for step in RECALL_STEPS.astype(np.float32):
+        reached = precision[recall >= step]
+        if len(reached):
+            total = np.float32(total + reached.max())
+    return np.float32(total / np.float32(len(RECALL_STEPS)))
+
+
+def mean_ap(aps: np.ndarray, ranked: np.ndarray) -> np.floating:
+    """The mean of the lanes' APs as the reference takes it: numpy's mean, in float64 when any AP was ranked,
+    else in float32 (every AP a plain 0 or 1); 0 with no AP."""
+    if not len(aps):
+        return np.float32(0)
+    return aps.mean() if ranked.any() else aps.astype(np.float32).mean()
+
+
+def _scores(frames: list[dict], params: OpenLaneV2Params) -> dict:
+    """DET_l and TOP_ll of either path's frames, as the reference computes them, with the counts."""
+    grouped = params.ties == "threshold"
+    confidence = np.concatenate([f["confidence"] for f in frames] or [np.zeros(0)])
+    n_gt = sum(f["n_gt"] for f in frames)
+    det, top, every, every_ranked = {}, {}, [], []
+    for k, threshold in enumerate(params.thresholds):
+        tp = np.concatenate([f["tp"][k] for f in frames] or [np.zeros(0, bool)])
+        det[str(float(threshold))] = average_precision(confidence, tp, n_gt, grouped)
+        aps = np.concatenate([f["lane_aps"][k] for f in frames] or [np.zeros(0)])
+        ranked = np.concatenate([f["ranked"][k] for f in frames] or [np.zeros(0, bool)])
+        top[str(float(threshold))] = float(mean_ap(aps, ranked))
+        every.append(aps)
+        every_ranked.append(ranked)
+    scored = sum(f["scored"] for f in frames)
+    return {
+        "det_l": float(np.asarray(list(det.values()), np.float32).mean()),
+        "top_ll": float(mean_ap(np.concatenate(every), np.concatenate(every_ranked))),
+        "det_l_by_threshold": {t: float(v) for t, v in det.items()},
+        "top_ll_by_threshold": top,
+        "frames": len(frames),
+        "frames_with_gt_lanes": sum(1 for f in frames if f["n_gt"]),
+        "lanes": {"pred": len(confidence), "gt": n_gt},
+        "confidences": NO_SCORE if not scored else SCORED if scored == len(frames) else
+        f"{SCORED} where given ({scored} of {len(frames)} frames), 1.0 for every lane elsewhere",
+    }  # fmt: skip
 
 
 def _range_text(bev_range: str) -> str:
@@ -447,42 +487,23 @@ def openlanev2_result(frames: list[dict]) -> dict:
                 "OpenLane-V2's own lanes and lanes cut from graphs are not scored together"
             )
         return _lanes_result(frames, params)
-    grouped = params.ties == "threshold"
-    confidence = np.concatenate([f["confidence"] for f in frames] or [np.zeros(0)])
-    n_gt = sum(f["n_gt"] for f in frames)
-    det, top, lane_aps = {}, {}, []
-    for k, threshold in enumerate(params.thresholds):
-        tp = np.concatenate([f["tp"][k] for f in frames] or [np.zeros(0, bool)])
-        det[str(float(threshold))] = average_precision(confidence, tp, n_gt, grouped)
-        aps = np.concatenate([f["lane_aps"][k] for f in frames] or [np.zeros(0)])
-        top[str(float(threshold))] = math.fsum(aps) / len(aps) if len(aps) else 0.0
-        lane_aps.append(aps)
-    every = np.concatenate(lane_aps)
-    scored = sum(f["scored"] for f in frames)
     result = {
-        "det_l": math.fsum(det.values()) / len(det),
-        "top_ll": math.fsum(every) / len(every) if len(every) else 0.0,
-        "det_l_by_threshold": det,
-        "top_ll_by_threshold": top,
-        "frames": len(frames),
-        "frames_with_gt_lanes": sum(1 for f in frames if f["n_gt"]),
-        "lanes": {"pred": len(confidence), "gt": n_gt},
-        "confidences": NO_SCORE if not scored else SCORED if scored == len(frames) else
-        f"{SCORED} where given ({scored} of {len(frames)} frames), 1.0 for every lane elsewhere",
+        **_scores(frames, params),
         "range": _range_text(params.bev_range),
         "params": params.to_dict(),
         "version": OPENLANEV2_VERSION,
-    }  # fmt: skip
-    if note := _note(confidence, grouped):
+    }
+    if note := _note(frames, params):
         result["note"] = note
     return result
 
 
-def _note(confidence: np.ndarray, grouped: bool) -> str | None:
+def _note(frames: list[dict], params: OpenLaneV2Params) -> str | None:
     """What a reader must know when the predictions carry no ranking."""
+    confidence = np.concatenate([f["confidence"] for f in frames] or [np.zeros(0)])
     if not len(confidence) or not (confidence == 1.0).all():
         return None
-    if grouped:
+    if params.ties == "threshold":
         return (
             "every lane's confidence is 1.0: each AP is a single point of its precision-recall curve "
             "(DET_l: the final precision at each recall step reached; TOP_ll: each lane's link precision "
@@ -501,12 +522,8 @@ def _note(confidence: np.ndarray, grouped: bool) -> str | None:
 # - The distance is the discrete Fréchet distance in 3D (similaritymeasures' frechet_dist), relaxed by the
 #   GT lane's 3D distance to the ego (scipy's float32 norm of its float32 points), and a pair counts only
 #   if its relaxed Chamfer distance is below the largest threshold too (the reference's mask).
-# - DET_l in float32 as there: float32 precision and recall, the recall steps compared in float32 (numpy
-#   1.23, its pinned version, casts the step to the recall's dtype: a recall of exactly 0.7 reaches its
-#   step), the 11 precisions summed in float32, the thresholds' APs averaged in float32.
-# - TOP_ll: each lane's AP from float32 precisions (lane_aps' float32), the mean over all of them taken
-#   by numpy in the reference's order, in float32 when every AP is a plain 0 or 1 (no ranked AP), as
-#   numpy's hstack of the reference's mixed scalars gives it.
+# DET_l and TOP_ll are then the graph path's arithmetic (average_precision, lane_aps, mean_ap: the
+# reference's float32, under its numpy 1.23), shared by both paths.
 
 REFERENCE = (
     "OpenDriveLab/OpenLane-V2 v2.1.0 (evaluation code unchanged to f085b3d): "
@@ -519,7 +536,6 @@ EGO_FROM_BEV = np.linalg.inv(BEV_FROM_OPENLANEV2_EGO)
 NOT_COMPUTED = "DET_t, TOP_lt and the OpenLane-V2 Score (OLS) are not computed: traffic elements are not read"
 FROM_SUBMISSION = "the submission's lanes as they are (3D points, confidences, topology_lclc probabilities)"
 FROM_GRAPH = "the predicted graph cut into lanes at its junctions, heights from the ground plane, links 1.0"
-EPS32 = np.finfo(np.float32).eps
 
 
 def annotated_of_graph(
@@ -591,87 +607,23 @@ def openlanev2_lanes_frame(
         relaxation_3d(gt_points, params), bound, True,
     )  # fmt: skip
     order = np.argsort(-confidence, kind="stable")
-    grouped = params.ties == "threshold"
-    tp = np.zeros((len(params.thresholds), n_pred), bool)
-    aps = np.zeros((len(params.thresholds), 2 * n_gt))
-    ranked = np.zeros((len(params.thresholds), 2 * n_gt), bool)
-    for k, threshold in enumerate(params.thresholds):
-        tp[k], match = greedy_match(order, nearest, best, threshold, n_gt)
-        if not n_gt:
-            continue
-        carried = (1.0 - truth) * UNCOVERED_CONFIDENCE
-        matched = np.flatnonzero(match >= 0)
-        carried[np.ix_(match[matched], match[matched])] = pred_links[np.ix_(matched, matched)]
-        for side, (t, c) in enumerate(((truth, carried), (truth.T, carried.T))):
-            t, c = np.ascontiguousarray(t), np.ascontiguousarray(c)
-            aps[k, side * n_gt : (side + 1) * n_gt] = lane_aps(t, c, RELATIONSHIP_THRESHOLD, grouped, True)
-            # an AP the reference ranks (a float64 there) rather than returns as a plain float32 0 or 1
-            ranked[k, side * n_gt : (side + 1) * n_gt] = (t.sum(1) > 0) & (c > RELATIONSHIP_THRESHOLD).any(1)
     return {
         "lane_path": True,
         "n_gt": n_gt,
         "one_point_gt": sum(1 for q in gt_points if len(q) == 1),
         "confidence": confidence,
-        "tp": tp,
-        "lane_aps": aps,
-        "ranked": ranked,
+        **matched_links(order, nearest, best, truth, pred_links, params),
         "scored": pred.confidence is not None if scored is None else scored,
         "source": source,
         "params": params.to_dict(),
     }
 
 
-def reference_average_precision(
-    confidence: np.ndarray, tp: np.ndarray, n_gt: int, grouped: bool
-) -> np.float32:
-    """The reference's _AP and _pr_curve: the 11-point AP of predictions (confidence, tp flag) against n_gt GT
-    lanes, walked in decreasing confidence (ties in the given order; `grouped`: a tie is one point of the
-    curve), in float32 as there."""
-    if not len(tp) and n_gt == 0:
-        return np.float32(1)
-    order = np.argsort(-confidence, kind="stable")
-    hits = np.cumsum(tp[order]).astype(np.float32)
-    count = np.arange(1, len(tp) + 1).astype(np.float32)
-    if grouped and len(tp):
-        ranked = confidence[order]
-        ends = np.flatnonzero(np.append(ranked[1:] != ranked[:-1], True))
-        hits, count = hits[ends], count[ends]
-    recall = hits / np.float32(max(n_gt, EPS32))
-    precision = hits / count
-    total = np.float32(0)
-    for step in RECALL_STEPS.astype(np.float32):
-        reached = precision[recall >= step]
-        if len(reached):
-            total = np.float32(total + reached.max())
-    return np.float32(total / np.float32(len(RECALL_STEPS)))
-
-
 def _lanes_result(frames: list[dict], params: OpenLaneV2Params) -> dict:
-    """openlanev2_result of lane-path frames: DET_l and TOP_ll as the reference computes them."""
-    grouped = params.ties == "threshold"
-    confidence = np.concatenate([f["confidence"] for f in frames] or [np.zeros(0)])
-    n_gt = sum(f["n_gt"] for f in frames)
-    det, top, every, every_ranked = {}, {}, [], []
-    for k, threshold in enumerate(params.thresholds):
-        tp = np.concatenate([f["tp"][k] for f in frames] or [np.zeros(0, bool)])
-        det[str(float(threshold))] = reference_average_precision(confidence, tp, n_gt, grouped)
-        aps = np.concatenate([f["lane_aps"][k] for f in frames] or [np.zeros(0)])
-        ranked = np.concatenate([f["ranked"][k] for f in frames] or [np.zeros(0, bool)])
-        top[str(float(threshold))] = float(_reference_mean(aps, ranked))
-        every.append(aps)
-        every_ranked.append(ranked)
-    scored = sum(f["scored"] for f in frames)
+    """openlanev2_result of lane-path frames: the shared scores, with where the lanes come from."""
     sources = sorted({f["source"] for f in frames})
     result = {
-        "det_l": float(np.asarray(list(det.values()), np.float32).mean()),
-        "top_ll": float(_reference_mean(np.concatenate(every), np.concatenate(every_ranked))),
-        "det_l_by_threshold": {t: float(v) for t, v in det.items()},
-        "top_ll_by_threshold": top,
-        "frames": len(frames),
-        "frames_with_gt_lanes": sum(1 for f in frames if f["n_gt"]),
-        "lanes": {"pred": len(confidence), "gt": n_gt},
-        "confidences": NO_SCORE if not scored else SCORED if scored == len(frames) else
-        f"{SCORED} where given ({scored} of {len(frames)} frames), 1.0 for every lane elsewhere",
+        **_scores(frames, params),
         "range": (
             "OpenLane-V2's annotated lanes as its files hold them (its 100 x 50 m: +-50 m along, +-25 m "
             f"across), every {GT_POINT_INTERVAL}th point as its val and test collections keep them; "
@@ -683,21 +635,13 @@ def _lanes_result(frames: list[dict], params: OpenLaneV2Params) -> dict:
         "params": params.to_dict(),
         "version": OPENLANEV2_VERSION,
     }  # fmt: skip
-    notes = [_note(confidence, grouped)]
+    notes = [_note(frames, params)]
     if one_point := sum(f["one_point_gt"] for f in frames):
         notes.append(
-            f"{one_point} of {n_gt} GT lanes have {GT_POINT_INTERVAL} points or fewer: OpenLane-V2's "
-            "collection keeps only their first point (its own evaluation fails on them; its annotations have "
-            "201 points)"
+            f"{one_point} of {result['lanes']['gt']} GT lanes have {GT_POINT_INTERVAL} points or fewer: "
+            "OpenLane-V2's collection keeps only their first point (its own evaluation fails on them; its "
+            "annotations have 201 points)"
         )
     if any(notes):
         result["note"] = "; ".join(n for n in notes if n)
     return result
-
-
-def _reference_mean(aps: np.ndarray, ranked: np.ndarray) -> np.floating:
-    """The mean of the lanes' APs as the reference takes it: numpy's mean, in float64 when any AP was ranked,
-    else in float32 (every AP a plain 0 or 1); 0 with no AP."""
-    if not len(aps):
-        return np.float32(0)
-    return aps.mean() if ranked.any() else aps.astype(np.float32).mean()

@@ -551,10 +551,16 @@ def report(
         None, show_default="none", help="paper: place the paper's published tables beside the measured ones"),
     bootstrap: Bootstrap = 1000,
     metric: str = typer.Option("lanegap", help=METRIC_HELP + "; lanegap always, the others a table each"),
+    browser_frames: int = typer.Option(
+        3000, min=1, help="Most frames in report.html's frame browser; above it, those where runs differ "
+        "most, each run's worst and a seeded sample"),
+    thumbnails: bool = typer.Option(
+        False, help="report.html: each browsed frame's front camera image, small"),
     as_json: AsJson = False,
 ) -> None:  # fmt: skip
     """The comparison tables and pictures of finished runs (from `cli eval` and `cli roundtrip`) as
-    OUT/report.md; prints the main tables (with --reference, the paper's rows beside them).
+    OUT/report.md and OUT/report.html (the same and a frame browser, one file to open in a browser); prints
+    the main tables (with --reference, the paper's rows beside them).
     Guide: docs/guide/report.md.
 
     \b
@@ -569,11 +575,13 @@ def report(
     with reported_errors():
         metrics = parse_metrics(metric, always=True)
         result = write_report(runs, out, roundtrip, workers, reference=reference, draws=bootstrap,
-                              metrics=metrics)  # fmt: skip
+                              metrics=metrics, browser_frames=browser_frames,
+                              thumbnails=thumbnails)  # fmt: skip
 
     shown, tables = report_tables(result)
     summary = {"report": str(result.path), "pictures": [str(p) for p in result.pictures], "tables": tables}
-    finish(summary, shown, [result.path], as_json, [f"{len(result.pictures)} pictures beside it"])
+    pictures = [f"{len(result.pictures)} pictures beside it"]
+    finish(summary, shown, [result.path, result.html], as_json, pictures)
 
 
 @app.command(short_help="One frame: ground truth beside prediction, as a PNG")

@@ -2,7 +2,8 @@
 
 BEV panels: x right, y forward (up on the page), the perception range as the axes' limits. A graph is
 drawn piece by piece (split at its junctions, pipeline/pieces.py), each piece in its own colour with an
-arrow in its driving direction; the ego car is the grey outline at the origin, nose forward.
+arrow in its driving direction; the ego car is the grey outline at the origin, nose forward. Colours,
+arrows and the ego car are benchmark/report/style.py's, which report.html's SVG drawings share.
 Figures are plain `matplotlib.figure.Figure`s (no pyplot state) saved as PNG by `save_png`, atomically.
 """
 
@@ -22,12 +23,13 @@ from benchmark.metric.candidates import candidate_pairs
 from benchmark.metric.densify import densify
 from benchmark.metric.matching import match
 from benchmark.metric.params import MetricParams
+from benchmark.report.style import STYLE
 from pipeline.geometry import Range, ground_height
 from pipeline.io import write_atomic
 from pipeline.lane_graph import LaneGraph
 from pipeline.pieces import graph_to_pieces
 
-MATCHED, UNMATCHED = "#2ca02c", "#d62728"  # vertices with / without a partner in the matching
+MATCHED, UNMATCHED = STYLE.matched, STYLE.unmatched  # vertices with / without a partner in the matching
 PANEL_INCHES = 2.6  # width of one BEV panel; its height follows the range's aspect
 
 
@@ -51,10 +53,8 @@ def save_png(figure: Figure, path: Path, dpi: int = 110) -> Path:
     return Path(path)
 
 
-def piece_colour(index: int) -> tuple:
-    from matplotlib import colormaps
-
-    return colormaps["tab10"](index % 10)
+def piece_colour(index: int) -> str:
+    return STYLE.piece(index)
 
 
 def bev_axes(ax, crop: Range, title: str) -> None:
@@ -63,31 +63,47 @@ def bev_axes(ax, crop: Range, title: str) -> None:
     ax.set_aspect("equal")
     ax.set_title(title, fontsize=7)
     ax.tick_params(labelsize=5, length=2)
-    ax.set_facecolor("#f7f7f7")
+    ax.set_facecolor(STYLE.background)
 
 
 def draw_ego(ax) -> None:
     """The ego car at the BEV origin, 1.9 m x 4.6 m, nose towards +y."""
-    outline = [(-0.95, -2.3), (0.95, -2.3), (0.95, 1.5), (0, 2.3), (-0.95, 1.5)]
-    ax.add_patch(Polygon(outline, closed=True, facecolor="#999999", edgecolor="black", lw=0.5, zorder=5))
+    ax.add_patch(Polygon(STYLE.ego_outline, closed=True, facecolor=STYLE.ego_fill, edgecolor=STYLE.ego_edge,
+                         lw=0.5, zorder=5))  # fmt: skip
 
 
 def draw_graph(ax, graph: LaneGraph, lw: float = 1.2, alpha: float = 1.0) -> None:
     """Each piece of the graph in its own colour, an arrow halfway along it in its direction."""
     xy = np.stack([np.asarray(graph.x, np.float64), np.asarray(graph.y, np.float64)], axis=1)
-    for index, chain in enumerate(graph_to_pieces(graph).chains):
+    chains = graph_to_pieces(graph).chains
+    for index, chain in enumerate(chains):
         points, colour = xy[chain], piece_colour(index)
         ax.plot(points[:, 0], points[:, 1], color=colour, lw=lw, alpha=alpha, solid_capstyle="round")
-        steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
-        if steps.sum() <= 0:
+    for index, (tail, head) in enumerate(piece_arrows(xy, chains)):
+        if tail < 0:
             continue
-        at = np.searchsorted(np.cumsum(steps), steps.sum() / 2)  # the segment halfway along
-        head, tail = points[at + 1], points[at]
-        middle, direction = (head + tail) / 2, (head - tail) / steps[at]
+        middle, direction = (xy[head] + xy[tail]) / 2, xy[head] - xy[tail]
+        shaft = STYLE.arrow_half_length * direction / np.linalg.norm(direction)
         ax.annotate(
-            "", xy=middle + 0.8 * direction, xytext=middle - 0.8 * direction,
-            arrowprops=dict(arrowstyle="-|>", color=colour, lw=lw, alpha=alpha, mutation_scale=7),
+            "", xy=middle + shaft, xytext=middle - shaft,
+            arrowprops=dict(arrowstyle="-|>", color=piece_colour(index), lw=lw, alpha=alpha,
+                            mutation_scale=STYLE.arrow_mutation_scale),
         )  # fmt: skip
+
+
+def piece_arrows(xy: np.ndarray, chains) -> list[tuple[int, int]]:
+    """(tail, head) vertices of the segment halfway along each piece, where its arrow goes; (-1, -1) for
+    a piece of no length. The frame browser of report.html draws its arrows on the same segments."""
+    arrows = []
+    for chain in chains:
+        chain = np.asarray(chain)
+        steps = np.linalg.norm(np.diff(xy[chain], axis=0), axis=1)
+        if len(steps) == 0 or steps.sum() <= 0:
+            arrows.append((-1, -1))
+            continue
+        at = int(np.searchsorted(np.cumsum(steps), steps.sum() / 2))  # the segment halfway along
+        arrows.append((int(chain[at]), int(chain[at + 1])))
+    return arrows
 
 
 @styled
@@ -235,6 +251,12 @@ def frame_view(
     return figure
 
 
+def forward_camera(cameras: list[dict]) -> dict:
+    """Of a frame's cameras (frames.cameras), the one whose optical axis points most along +y (forward)."""
+    forward = [np.array(c["sensor_to_ego"]).reshape(4, 4)[:3, 2] @ np.array([0.0, 1.0, 0.0]) for c in cameras]
+    return cameras[int(np.argmax(forward))]
+
+
 def front_camera(data: Path, frame: dict) -> dict:
     """The frame's camera that looks most along +y (forward), its image, and a function that projects a
     graph laid on the ground (the plane of frames.ground_z and ground_slope) into it with the encoder's own
@@ -249,11 +271,7 @@ def front_camera(data: Path, frame: dict) -> dict:
     if not frame["cameras"]:
         raise ValueError(f"{data / 'frames'}: frame {frame['frame_id']} has no cameras")
     manifest = json.loads((Path(data) / "manifest.json").read_text())
-    forward = [
-        np.array(c["sensor_to_ego"]).reshape(4, 4)[:3, 2] @ np.array([0.0, 1.0, 0.0])
-        for c in frame["cameras"]
-    ]
-    camera = frame["cameras"][int(np.argmax(forward))]
+    camera = forward_camera(frame["cameras"])
     path = Path(manifest["root"]) / camera["image_path"]
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:

@@ -1,5 +1,6 @@
-"""`cli report`: write_report assembles DIR/report.md and the PNGs it links from finished runs, and returns
-what it wrote (Report).
+"""`cli report`: write_report assembles DIR/report.md and the PNGs it links from finished runs, and
+report.html beside it (the same content in one self-contained page, with a frame browser:
+benchmark/report/html.py), and returns what it wrote (Report).
 
 Reads what `cli train` and `cli eval` (RUN/metrics.json, predictions.parquet, config.json, run.json,
 log.jsonl, val.jsonl) and `cli roundtrip` (JSON) wrote, and never recomputes a score, with one exception
@@ -22,6 +23,8 @@ from pathlib import Path
 
 from benchmark.metric import bootstrap
 from benchmark.metric.table import ALWAYS, Metric
+from benchmark.report.browser import DEFAULT_FRAMES
+from benchmark.report.html import write_html
 from benchmark.report.measured_tables import load_roundtrips, roundtrip_tables
 from benchmark.report.reference import load_reference
 from benchmark.report.runs import Block, group_blocks, load_runs
@@ -41,6 +44,7 @@ from pipeline.io import write_atomic
 @dataclass
 class Report:
     path: Path  # report.md
+    html: Path  # report.html
     blocks: list[Block]
     pictures: list[Path]
     grids: dict[str, tuple[int, int]]  # picture file name -> (rows, columns) of its panel grid
@@ -50,13 +54,18 @@ class Report:
 
 def write_report(
     runs: list[Path], out: Path, roundtrips: list[Path] = (), workers: int = 1, reference: str | None = None,
-    draws: int = bootstrap.DRAWS, metrics: tuple[Metric, ...] = ALWAYS,
+    draws: int = bootstrap.DRAWS, metrics: tuple[Metric, ...] = ALWAYS, browser_frames: int = DEFAULT_FRAMES,
+    thumbnails: bool = False,
 ) -> Report:  # fmt: skip
-    """Write out/report.md and the PNGs it links; returns what was written. `reference="paper"` places
-    the paper's tables beside the measured ones; `draws`: bootstrap draws of the intervals (0: none);
-    `metrics` beyond LaneGAP's: a table per other published metric (benchmark/report/variant_tables.py)."""
+    """Write out/report.md, the PNGs it links and out/report.html; returns what was written.
+    `reference="paper"` places the paper's tables beside the measured ones; `draws`: bootstrap draws of the
+    intervals (0: none); `metrics` beyond LaneGAP's: a table per other published metric
+    (benchmark/report/variant_tables.py); `browser_frames`: the most frames report.html's browser holds;
+    `thumbnails`: each browsed frame's front camera image, small."""
     out = Path(out)
     bootstrap.check_draws(draws)
+    if browser_frames < 1:
+        raise ValueError(f"--browser-frames must be at least 1, not {browser_frames}")
     refs = load_reference(reference) if reference else {}
     blocks = group_blocks(load_runs(runs))
     trip_tables = roundtrip_tables(load_roundtrips(list(roundtrips)))  # checked before anything is written
@@ -77,4 +86,5 @@ def write_report(
     text = "\n".join(md).rstrip() + "\n"
     path = out / "report.md"
     write_atomic(path, lambda tmp: tmp.write_text(text))
-    return Report(path, blocks, doc.pictures, doc.grids, doc.shown_references)
+    page = write_html(path, blocks, browser_frames, thumbnails)
+    return Report(path, page, blocks, doc.pictures, doc.grids, doc.shown_references)

@@ -1,0 +1,296 @@
+"""report.html (benchmark/report/html.py, browser.py, assets/browser.js) opened from the disk in headless
+Chromium (Debian's chromium and chromium-driver, `make chromium`), driven by selenium.
+
+The runs, written by hand on the session's small synthetic AV2 split (conftest's `synth_prepared`, 20
+validation frames; tests/test_report_external.py's helpers, nothing trained): `shifted`, a run of ours
+whose predictions are the ground truth shifted 0.2 m with edges dropped; `half`, the ground truth on every
+other frame and `shifted`'s elsewhere; `subset`, an external MapTRv2 file's run holding the last 12 frames.
+And `old`, a run folder from before per-frame counts (no frame_counts.parquet).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import urllib.parse
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_report_external import SUBSET, external_metrics, our_extra, scored_folder
+
+from benchmark.graph_table import graphs_from_table, read_graph_table
+from benchmark.metric import bootstrap
+from benchmark.metric.densify import unique_edges
+from benchmark.report.browser import frame_scores, keep_frames
+from benchmark.report.writer import write_report
+from pipeline import io
+from pipeline.lane_graph import LaneGraph
+
+CHROMIUM, DRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
+# a select's option by its text (the runs' options are numbered in the report's order)
+CHOOSE = "const choose = (s, text) => { s.value = [...s.options].find(o => o.text === text).value; };"
+
+
+@pytest.fixture(scope="module")
+def made(synth_prepared, tmp_path_factory) -> dict:
+    data = synth_prepared["av2"]
+    rows = io.read_table(data, "frames", columns=["frame_id", "split"]).to_pylist()
+    val = sorted(row["frame_id"] for row in rows if row["split"] == "val")
+    gt_all = graphs_from_table(read_graph_table(data), data)
+    gt = {f: gt_all[f] for f in val}
+    root = tmp_path_factory.mktemp("report_html")
+    runs = root / "runs"
+    shifted = {}
+    for i, f in enumerate(val):
+        g, keep = gt[f], np.arange(len(gt[f].src)) % (2 + i % 3) != 0
+        shifted[f] = LaneGraph(g.x + np.float32(0.2), g.y, g.src[keep], g.dst[keep])
+    half = {f: gt[f] if i % 2 else shifted[f] for i, f in enumerate(val)}
+    for name, graphs in (("shifted", shifted), ("half", half)):
+        extra, config = our_extra(data, 1 if name == "shifted" else 2)
+        scored_folder(runs / name, graphs, gt, extra)
+        (runs / name / "config.json").write_text(json.dumps(config))
+        (runs / name / "run.json").write_text(json.dumps({"data": str(data), "world_size": 1}))
+        (runs / name / "checkpoint.pt").write_bytes(b"")
+    subset = val[-SUBSET:]
+    extra = external_metrics(data, "maptrv2", SUBSET, len(val) - SUBSET, points_clipped=0, vectors_read=9,
+                             vectors_kept=9)  # fmt: skip
+    scored_folder(runs / "subset", {f: gt[f] for f in subset}, {f: gt[f] for f in subset}, extra)
+    shutil.copytree(runs / "shifted", root / "old" / "old")
+    (root / "old" / "old" / bootstrap.FRAME_COUNTS).unlink()
+    report = write_report([runs, root / "old"], root / "report", draws=0)
+    return {"root": root, "report": report, "gt": gt, "val": val, "shifted": shifted, "half": half,
+            "subset": subset, "runs": runs}  # fmt: skip
+
+
+def test_page_is_one_file_with_every_table(made):
+    page = made["report"].html.read_text()
+    assert made["report"].html == made["report"].path.parent / "report.html"
+    assert "default-src 'none'" in page
+    assert 'src="data:image/png;base64,' in page
+    for picture in made["report"].pictures:  # every picture inline, none linked
+        assert f'src="{picture.name}"' not in page
+    assert "old: not in the frame browser: no frame_counts.parquet" in page
+
+
+def test_frame_scores_pool_as_the_metric():
+    """A frame's F1 from its count row: precision sum / n_pred etc.; no junction -> none, not 0."""
+    row = np.zeros(16)
+    row[:8] = [3.0, 4, 1.5, 3, 0, 0, 0, 0]
+    scores = frame_scores(row)
+    p, r = 3 / 4, 1.5 / 3
+    assert scores.precision == p and scores.recall == r
+    assert math.isclose(scores.f1, 2 * p * r / (p + r))
+    assert scores.junction_f1 is None
+    row[4:8] = [1.0, 2, 0.5, 1]
+    assert math.isclose(frame_scores(row).junction_f1, 2 * 0.5 * 0.5 / 1.0)
+
+
+def test_keep_frames_says_why(made):
+    from benchmark.report.browser import browser_blocks
+
+    blocks, _ = browser_blocks(made["report"].blocks, thumbnails=False)
+    everything = keep_frames(blocks, 10_000)
+    assert len(everything.frames) == 20 and everything.reasons == ["every evaluated frame"]
+    kept = keep_frames(blocks, 9)
+    assert len(kept.frames) == 9 and kept.total == 20
+    assert all(kept.why[key] for key in kept.frames)
+    reasons = {kept.reasons[r] for key in kept.frames for r in kept.why[key]}
+    assert any("largest differences" in r for r in reasons) and any("lowest" in r for r in reasons)
+    assert keep_frames(blocks, 9) == kept  # seeded
+
+
+# ---------------------------------------------------------------------------------------------------
+# In the browser
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not (CHROMIUM.is_file() and DRIVER.is_file()):
+        pytest.skip(f"no Chromium at {CHROMIUM} and {DRIVER} (`make chromium` installs Debian's)")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = str(CHROMIUM)
+    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                     "--window-size=1400,1000"):  # fmt: skip
+        options.add_argument(argument)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
+    driver = webdriver.Chrome(service=Service(str(DRIVER)), options=options)
+    yield driver
+    driver.quit()
+
+
+def open_report(driver, path: Path, fragment: str = "") -> None:
+    driver.get(path.absolute().as_uri() + fragment)
+    driver.get_log("browser")  # the log of this page from here on
+    driver.refresh()
+    wait_ready(driver)
+
+
+def wait_ready(driver) -> None:
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    WebDriverWait(driver, 30).until(
+        lambda d: d.find_element("tag name", "body").get_attribute("data-browser")
+    )
+
+
+def table_rows(driver) -> list[list[str]]:
+    return driver.execute_script(
+        "return [...document.querySelectorAll('#frame-browser table.frames tbody tr')]"
+        ".map(tr => [...tr.cells].map(td => td.textContent));"
+    )
+
+
+def header(driver) -> list[str]:
+    return driver.execute_script(
+        "return [...document.querySelectorAll('#frame-browser table.frames th')].map(th => th.textContent);"
+    )
+
+
+def test_no_console_error_no_request(browser, made):
+    open_report(browser, made["report"].html)
+    errors = [e for e in browser.get_log("browser") if e["level"] in ("SEVERE", "WARNING")]
+    assert errors == []
+    requests = []
+    for entry in browser.get_log("performance"):
+        message = json.loads(entry["message"])["message"]
+        if message["method"] == "Network.requestWillBeSent":
+            requests.append(message["params"]["request"]["url"])
+    # the page itself (opened, then reloaded), and nothing else: pictures are data: URIs
+    assert {u for u in requests if not u.startswith("data:")} == {made["report"].html.absolute().as_uri()}
+
+
+def test_every_table_of_report_md(browser, made):
+    open_report(browser, made["report"].html)
+    tables = browser.execute_script(
+        "return [...document.querySelectorAll('#report table')].map(t => [...t.rows].map("
+        "r => [...r.cells].map(c => c.textContent.trim())));"
+    )
+    markdown = made["report"].path.read_text().splitlines()
+    expected, table = [], []
+    for line in markdown + [""]:
+        if line.startswith("|"):
+            table.append(
+                [cell.strip().replace("**", "").replace("`", "") for cell in line.strip("|").split("|")]
+            )
+        elif table:
+            expected.append([row for row in table if not all(set(c) <= {"-"} for c in row)])
+            table = []
+    assert len(expected) >= 4
+    assert tables == expected
+
+
+def test_table_sorts_and_filters(browser, made):
+    open_report(browser, made["report"].html)
+    names = header(browser)
+    assert names[:5] == ["frame", "data", "kept because", "junctions", "lane length (m)"]
+    rows = table_rows(browser)
+    assert len(rows) == 20 and sorted(r[0] for r in rows) == made["val"]
+    f1 = names.index("shifted dir TOPO F1")
+    junctions = names.index("junctions")
+    # per-frame F1 from frame_counts.parquet, as the page shows it
+    counts = dict(zip(*bootstrap.read_frame_counts(made["runs"] / "shifted" / bootstrap.FRAME_COUNTS)))
+    for row in rows:
+        assert row[f1] == f"{100 * frame_scores(counts[row[0]]).f1:.1f}"
+        assert row[junctions] == str(int(counts[row[0]][7]))
+    # a frame with no junction shows none, and the external run no score where it has no frame
+    jf1 = names.index("shifted J-TOPO F1")
+    assert all(r[jf1] == "none" for r in rows if r[junctions] == "0")
+    assert all(r[jf1] not in ("none", "–") for r in rows if r[junctions] != "0")
+    assert sum(r[names.index("subset dir TOPO F1")] == "–" for r in rows) == 20 - SUBSET
+    th = browser.find_elements("css selector", "#frame-browser table.frames th")
+    th[f1].click()
+    values = [float(r[f1]) for r in table_rows(browser)]
+    assert values == sorted(values)
+    th[f1].click()
+    values = [float(r[f1]) for r in table_rows(browser)]
+    assert values == sorted(values, reverse=True)
+    # F1 below a value
+    browser.execute_script(
+        CHOOSE + "const c = document.querySelector('#frame-browser .controls');"
+        "choose(c.querySelector('[name=below-run]'), 'shifted');"
+        "const v = c.querySelector('[name=below-value]'); v.value = '60';"
+        "v.dispatchEvent(new Event('input'));"
+    )
+    below = table_rows(browser)
+    expected = sorted(f for f in made["val"] if 100 * frame_scores(counts[f]).f1 < 60)
+    assert 0 < len(expected) < 20 and sorted(r[0] for r in below) == expected
+    # the difference of two runs above a value, with junctions from 1
+    half = dict(zip(*bootstrap.read_frame_counts(made["runs"] / "half" / bootstrap.FRAME_COUNTS)))
+    browser.execute_script(
+        CHOOSE + "const c = document.querySelector('#frame-browser .controls');"
+        "c.querySelector('[name=reset]').click();"
+        "choose(c.querySelector('[name=diff-a]'), 'half');"
+        "choose(c.querySelector('[name=diff-b]'), 'shifted');"
+        "const v = c.querySelector('[name=diff-value]'); v.value = '5';"
+        "v.dispatchEvent(new Event('input'));"
+    )
+    gaps = {f: 100 * (frame_scores(half[f]).f1 - frame_scores(counts[f]).f1) for f in made["val"]}
+    expected = sorted(f for f in made["val"] if gaps[f] > 5)
+    assert 0 < len(expected) < 20
+    assert sorted(r[0] for r in table_rows(browser)) == expected
+
+
+def panels(driver) -> dict[str, int]:
+    return driver.execute_script(
+        "const out = {}; document.querySelectorAll('#frame-browser .panel').forEach("
+        "p => { out[p.dataset.panel] = p.querySelectorAll('svg line.edge').length; }); return out;"
+    )
+
+
+def test_choosing_a_frame_draws_each_run(browser, made):
+    open_report(browser, made["report"].html)
+    frame = made["subset"][-1]  # in every run
+    row = browser.find_element("css selector", f'#frame-browser tr[data-frame="{frame}"]')
+    row.click()
+    edges = lambda g: len(unique_edges(g, True))  # noqa: E731
+    assert all(len(unique_edges(g, True)) == len(g.src) for g in made["gt"].values())
+    drawn = {
+        "ground truth": made["gt"],
+        "shifted": made["shifted"],
+        "half": made["half"],
+        "subset": made["gt"],
+    }
+    assert panels(browser) == {name: edges(graphs[frame]) for name, graphs in drawn.items()}
+    # the external run predicted this frame as the ground truth: every edge matched
+    assert (
+        browser.execute_script(
+            "return document.querySelectorAll('[data-panel=subset] line.edge.unmatched').length;"
+        )
+        == 0
+    )
+    assert urllib.parse.unquote(browser.execute_script("return location.hash;")) == f"#frame={frame}"
+    # arrow keys step through the listed frames
+    from selenium.webdriver.common.keys import Keys
+
+    browser.find_element("tag name", "body").send_keys(Keys.ARROW_DOWN)
+    listed = [r[0] for r in table_rows(browser)]
+    following = listed[listed.index(frame) + 1] if listed.index(frame) + 1 < len(listed) else frame
+    assert urllib.parse.unquote(browser.execute_script("return location.hash;")) == f"#frame={following}"
+    browser.execute_script("document.querySelector('#frame-browser .frame-view').scrollIntoView();")
+    folder = made["root"] / "screenshots"
+    folder.mkdir(exist_ok=True)
+    shot = folder / "report_html_frame.png"
+    browser.save_screenshot(str(shot))
+    print(f"screenshot: {shot.absolute()}")
+    assert shot.stat().st_size > 10_000
+
+
+def test_address_opens_the_frame(browser, made):
+    frame = made["val"][3]
+    open_report(browser, made["report"].html, "#frame=" + urllib.parse.quote(frame, safe=""))
+    assert (
+        browser.execute_script("return document.querySelector('#frame-browser .frame-view h3').textContent;")
+        == frame
+    )
+    assert set(panels(browser)) == {"ground truth", "shifted", "half", "subset"}
+    open_report(browser, made["report"].html, "#frame=" + urllib.parse.quote("av2/nowhere/1", safe=""))
+    problems = browser.execute_script(
+        "return [...document.querySelectorAll('#frame-browser .problem')].map(p => p.textContent);"
+    )
+    assert any("av2/nowhere/1" in p and "does not hold" in p for p in problems)
+    assert browser.execute_script("return document.querySelectorAll('#frame-browser tbody tr').length;") == 20

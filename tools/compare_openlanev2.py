@@ -12,7 +12,9 @@ TOP_ll do not use, are stubbed). Each case is a set of frames: the reference wri
 needs ortools, is skipped). Ours scores the same AnnotatedLanes with benchmark.metric.openlanev2. --data adds
 frames of prepared datasets: their graphs as OpenLane-V2 lanes of 201 points (annotated_of_graph), against
 the graph with 0.1 m of noise and one edge in ten dropped, scored per edge; without --data the real AV2 logs
-of ../shared/data are prepared in a temporary folder when they are there.
+of ../shared/data are prepared in a temporary folder when they are there. The same frames are also scored on
+the graph path (cases named "graph path: ..."): both graphs as lanes_of cuts them (11 points, z = 0), the
+reference given those very lanes as its ground truth, uncollected, beside our openlanev2_frame.
 
 The same file is the reference's side (`--reference-side`): that part imports nothing of this project.
 """
@@ -63,9 +65,9 @@ def reference_side(checkout: Path, cases_file: Path, root: Path) -> None:
     module = sys.modules["openlanev2.centerline.evaluation.evaluate"]
     module.f1 = types.SimpleNamespace(bench_one_submit=lambda gts, preds: None)  # needs ortools
     for case in json.loads(cases_file.read_text()):
-        folder = root / case["name"].replace(" ", "_")
+        folder = root / case["name"].replace(" ", "_").replace(":", "").replace(",", "")
         segments: dict[str, list[str]] = {}
-        results = {}
+        results, uncollected = {}, {}
         for frame in case["frames"]:
             segment, timestamp = frame["segment"], frame["timestamp"]
             segments.setdefault(segment, []).append(timestamp)
@@ -84,9 +86,18 @@ def reference_side(checkout: Path, cases_file: Path, root: Path) -> None:
                     "topology_lcte": [[] for _ in gt["points"]],
                 },
             }
-            path = folder / "val" / segment / "info" / f"{timestamp}.json"
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(json.dumps(info))
+            if case.get("uncollected"):  # the graph path: the lanes as they are, float64
+                n = len(gt["points"])
+                info["annotation"]["lane_centerline"] = [
+                    {"id": i, "points": np.asarray(q, np.float64)} for i, q in enumerate(gt["points"])
+                ]
+                info["annotation"]["topology_lclc"] = np.asarray(gt["topology"], np.int8).reshape(n, n)
+                info["annotation"]["topology_lcte"] = np.zeros((n, 0), np.int8)
+                uncollected[("val", segment, timestamp)] = info
+            else:
+                path = folder / "val" / segment / "info" / f"{timestamp}.json"
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text(json.dumps(info))
             k = len(pred["points"])
             results[("val", segment, timestamp)] = {
                 "predictions": {
@@ -99,8 +110,11 @@ def reference_side(checkout: Path, cases_file: Path, root: Path) -> None:
                     "topology_lcte": np.zeros((k, 0)),
                 }
             }
-        collect(str(folder), {"val": segments}, "collection", point_interval=20)
-        ground_truth = io.pickle_load(str(folder / "collection.pkl"))
+        if case.get("uncollected"):
+            ground_truth = uncollected
+        else:
+            collect(str(folder), {"val": segments}, "collection", point_interval=20)
+            ground_truth = io.pickle_load(str(folder / "collection.pkl"))
         submission = {
             "method": "compare",
             "authors": [],
@@ -266,8 +280,55 @@ def graph_cases(data: list[Path], rng: np.random.Generator) -> list[tuple[str, l
     return cases
 
 
+GRAPH_PATH = "graph path: "  # a case name's start: frames of (prediction graph, GT graph, edge scores)
+
+
+def graph_path_cases(data: list[Path], rng: np.random.Generator) -> list[tuple[str, list]]:
+    """The graph path: prepared datasets' graphs against themselves with 0.1 m noise and one edge in ten
+    dropped, a random score per edge; and 10 straight GT lanes of which 7 or 9 are found (recall of exactly
+    0.7 or 0.9), distinct scores. Frames: (prediction graph, GT graph, scores per edge)."""
+    from benchmark.graph_table import graphs_from_table, read_graph_table
+    from pipeline.lane_graph import LaneGraph
+    from tools.bench_metrics import noisy
+
+    cases = []
+    for folder in data:
+        graphs = graphs_from_table(read_graph_table(folder), folder)
+        frames = []
+        for frame_id in sorted(graphs):
+            pred = noisy(graphs[frame_id], rng)
+            frames.append((pred, graphs[frame_id], rng.random(len(pred.src))))
+        cases.append(
+            (f"{GRAPH_PATH}{folder.name}, 0.1 m noise, one edge in ten dropped, a score per edge", frames)
+        )
+
+    def straight_lanes(count: int) -> LaneGraph:
+        x = np.repeat(4.0 * np.arange(count) - 18.0, 2)
+        y = np.tile([0.0, 10.0], count)
+        return LaneGraph(
+            x, y, np.arange(0, 2 * count, 2, dtype=np.int32), np.arange(1, 2 * count, 2, dtype=np.int32)
+        )
+
+    for found in (7, 9):
+        scores = 0.9 - 0.05 * np.arange(found)
+        cases.append(
+            (
+                f"{GRAPH_PATH}recall of exactly 0.{found}",
+                [(straight_lanes(found), straight_lanes(10), scores)],
+            )
+        )
+    return cases
+
+
 def case_record(name: str, frames: list) -> dict:
-    """A case as the reference's side reads it (JSON floats: exact)."""
+    """A case as the reference's side reads it (JSON floats: exact); a graph path case as lanes_of cuts its
+    graphs, the GT given to the reference uncollected."""
+    if name.startswith(GRAPH_PATH):
+        return {
+            **case_record(name.removeprefix(GRAPH_PATH), lanes_of_graphs(frames)),
+            "name": name,
+            "uncollected": True,
+        }
     out = []
     for i, (gt, pred) in enumerate(frames):
         confidence = np.ones(len(pred)) if pred.confidence is None else pred.confidence
@@ -289,11 +350,32 @@ def case_record(name: str, frames: list) -> dict:
     return {"name": name, "frames": out}
 
 
-def ours(frames: list, ties: str) -> dict:
-    from benchmark.metric.openlanev2 import openlanev2_lanes_frame, openlanev2_result
+def lanes_of_graphs(frames: list) -> list:
+    """Graph path frames as (GT, prediction) AnnotatedLanes: lanes_of's lanes (11 points, links 0 or 1) at
+    z = 0, as the reference takes only 3D points (a zero adds nothing to any distance)."""
+    from benchmark.metric.openlanev2 import lanes_of
+    from pipeline.records import AnnotatedLanes
+
+    def level(points: np.ndarray) -> list[np.ndarray]:
+        return list(np.concatenate([points, np.zeros(points.shape[:-1] + (1,))], axis=-1))
+
+    out = []
+    for pred, gt, scores in frames:
+        g, p = lanes_of(gt), lanes_of(pred, scores=scores)
+        out.append((
+            AnnotatedLanes(level(g.points), g.adjacency, [str(i) for i in range(g.n)]),
+            AnnotatedLanes(level(p.points), p.adjacency, [str(i) for i in range(p.n)], p.confidence),
+        ))  # fmt: skip
+    return out
+
+
+def ours(name: str, frames: list, ties: str) -> dict:
+    from benchmark.metric.openlanev2 import openlanev2_frame, openlanev2_lanes_frame, openlanev2_result
     from benchmark.metric.params import OpenLaneV2Params
 
     params = OpenLaneV2Params(ties=ties)
+    if name.startswith(GRAPH_PATH):
+        return openlanev2_result([openlanev2_frame(pred, gt, params, scores) for pred, gt, scores in frames])
     return openlanev2_result([openlanev2_lanes_frame(pred, gt, params) for gt, pred in frames])
 
 
@@ -343,6 +425,7 @@ def main() -> None:
                 prepare("av2", SHARED_AV2, Path(tmp) / "real_av2", TargetOptions())
                 data = [Path(tmp) / "real_av2"]
         cases += graph_cases(data, rng)
+        cases += graph_path_cases(data, rng)
         cases_file = Path(tmp) / "cases.json"
         cases_file.write_text(json.dumps([case_record(name, frames) for name, frames in cases]))
         run = subprocess.run(
@@ -374,7 +457,7 @@ def main() -> None:
     worst = 0.0
     for name, frames in cases:
         ties = "order" if "ties in order" in name else "threshold"
-        mine, ref = ours(frames, ties), theirs[name]
+        mine, ref = ours(name, frames, ties), theirs[name]
         d_det, d_top = abs(mine["det_l"] - ref["DET_l"]), abs(mine["top_ll"] - ref["TOP_ll"])
         worst = max(worst, d_det, d_top)
         lanes = mine["lanes"]

@@ -285,8 +285,8 @@ GRAPH_PATH = "graph path: "  # a case name's start: frames of (prediction graph,
 
 def graph_path_cases(data: list[Path], rng: np.random.Generator) -> list[tuple[str, list]]:
     """The graph path: prepared datasets' graphs against themselves with 0.1 m noise and one edge in ten
-    dropped, a random score per edge; and 10 straight GT lanes of which 7 or 9 are found (recall of exactly
-    0.7 or 0.9), distinct scores. Frames: (prediction graph, GT graph, scores per edge)."""
+    dropped, a random score per edge; 10 straight GT lanes of which 7 or 9 are found (recall of exactly
+    0.7 or 0.9), distinct scores; empty frames. Frames: (prediction graph, GT graph, scores per edge)."""
     from benchmark.graph_table import graphs_from_table, read_graph_table
     from pipeline.lane_graph import LaneGraph
     from tools.bench_metrics import noisy
@@ -317,6 +317,13 @@ def graph_path_cases(data: list[Path], rng: np.random.Generator) -> list[tuple[s
                 [(straight_lanes(found), straight_lanes(10), scores)],
             )
         )
+    empty, three = LaneGraph.empty(), straight_lanes(3)
+    nothing = [
+        (empty, empty, np.zeros(0)),
+        (empty, three, np.zeros(0)),
+        (three, empty, np.array([0.9, 0.8, 0.7])),
+    ]
+    cases.append((f"{GRAPH_PATH}an empty frame, an empty prediction, an empty GT", nothing))
     return cases
 
 

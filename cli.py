@@ -8,7 +8,6 @@ table takes --json (the result as one JSON line on stdout instead) and says whic
 from __future__ import annotations
 
 import os
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -47,22 +46,6 @@ PATH_POINTS = Literal[10, 20, 30, 40]  # the paper's counts of points per path (
 JSON_HELP = "Print the result as one JSON line instead of the tables (for scripts)"
 
 
-@contextmanager
-def reported_errors():
-    """Bad input (DataError is a ValueError), or --executor ray without Ray installed (its install hint), ends
-    the command with its message and exit code 1."""
-    from pipeline.executor import RayMissing
-
-    try:
-        yield
-    except (ValueError, FileNotFoundError, FileExistsError, RayMissing) as error:
-        message = str(error)
-        if "Original Traceback" in message:  # re-raised from a DataLoader worker: its last line says it
-            message = message.strip().splitlines()[-1].partition(": ")[2]
-        typer.secho(f"error: {message}", fg="red", err=True)
-        raise typer.Exit(1) from error
-
-
 def positive(value: float | None) -> float | None:
     """Callback of the options that must be greater than 0 (typer's ranges include their bound)."""
     if value is not None and value <= 0:
@@ -84,24 +67,10 @@ Bootstrap = Annotated[int, typer.Option(min=0, help=BOOTSTRAP_HELP)]
 WorkersPerCore = Annotated[int, typer.Option(min=0, help="Worker processes (0: one per core)")]
 
 
-def version_text() -> str:
-    """The installed package's version, the metric's metric_version and the prepared data's schema_version
-    (CHANGELOG.md says what each bump means for old files); imports neither torch nor the models."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    from benchmark.metric.params import METRIC_VERSION
-    from pipeline.io import SCHEMA_VERSION
-
-    try:
-        package = version("lanegraph")
-    except PackageNotFoundError:  # a checkout on sys.path, never installed
-        package = "(not installed)"
-    versions = f"metric_version {METRIC_VERSION}, prepared-data schema_version {SCHEMA_VERSION}"
-    return f"lanegraph {package} ({versions})"
-
-
 def print_version(value: bool) -> None:
     if value:
+        from benchmark.tables import version_text
+
         typer.echo(version_text())
         raise typer.Exit()
 
@@ -147,8 +116,7 @@ def synth(
       cli synth --out demo/raw
       cli synth --out tiny/raw --logs 2 --frames-per-log 3 --val-frames-per-log 3 --worlds 2 --no-sensors
     """
-    from benchmark.tables import finish
-    from pipeline.synth import summary_table
+    from benchmark.tables import finish, reported_errors, synth_tables
     from pipeline.synth import synth as write_synth
 
     with reported_errors():
@@ -156,11 +124,9 @@ def synth(
                               frame_period=frame_period, worlds=worlds, val_worlds=val_worlds,
                               workers=workers, val_frames_per_log=val_frames_per_log,
                               val_frame_period=val_frame_period)  # fmt: skip
-    worlds = ", ".join(f"{world['index']} {world['nuscenes_map']}" for world in summary["worlds"])
-    heading = f"synth, seed {summary['seed']}: worlds {worlds}"
     wrote = [out / summary[root] for root in ("av2_root", "nuscenes_root", "openlanev2_root")]
     wrote.append(out / "synth.json")
-    finish(summary, [(heading, summary_table(summary))], wrote, as_json)
+    finish(summary, synth_tables(summary), wrote, as_json)
 
 
 def split_files(items: list[str]) -> dict[str, Path]:
@@ -232,10 +198,9 @@ def prepare(
       cli prepare --dataset av2 --root data/av2/sensor --out prepared/geo --split-scheme geographic
       cli prepare --dataset nuscenes --root data/nuscenes --version v1.0-mini --out prepared/mini
     """
-    from benchmark.tables import finish, leakage_table, prepare_table, split_shares_table
+    from benchmark.tables import finish, prepare_tables, reported_errors
     from pipeline.geometry import Range
     from pipeline.prepare import prepare as run_prepare
-    from pipeline.splits.leakage import leakage_line
     from pipeline.targets import TargetOptions
 
     with reported_errors():
@@ -249,15 +214,7 @@ def prepare(
             subset=subset, cities=cities,
         )  # fmt: skip
     wrote = [out, out / "splits.png"] + ([out / "errors.jsonl"] if summary["frames_skipped"] else [])
-    tables = [(f"prepared {dataset} from {root}", prepare_table(summary))]
-    leakage = summary["leakage"]
-    if "split_shares" in summary:
-        tables.append(("geographic split: shares of the kept frames (target)",
-                       split_shares_table(summary["split_shares"])))  # fmt: skip
-    if leakage["splits"]:
-        tables.append(("leakage: each frame's distance to the nearest training frame of its city, and its "
-                       "window's overlap with theirs", leakage_table(leakage)))  # fmt: skip
-    finish(summary, tables, wrote, as_json, [leakage_line(leakage, split_scheme)])
+    finish(summary, prepare_tables(summary, dataset, root, split_scheme), wrote, as_json)
 
 
 @app.command(short_help="Train a baseline: LaneGAP, MapTR, STSU or HDMapNet")
@@ -330,6 +287,7 @@ def train(
     """
     from baselines.launch import TrainOptions, launch
     from baselines.run_folder import TRAINING_FILES
+    from benchmark.tables import finish, reported_errors, train_tables
 
     # The options given on this command line (typer's own click names them): the others take their
     # defaults, and on --resume the given ones change the run's config as told (logged) or are refused.
@@ -339,12 +297,8 @@ def train(
         trained = launch(TrainOptions(**given))
     if not as_json and os.environ.get("RANK", "0") != "0":
         return  # under torchrun, rank 0 reports
-    from benchmark.tables import finish, train_table
-
-    config = trained.config
-    heading = f"{config.model} ({config.preset}, {config.encoder.modality}) trained on {trained.data}"
     wrote = [out / name for name in TRAINING_FILES if (out / name).exists()]
-    finish(trained.summary, [(heading, train_table(trained.summary))], wrote, as_json)
+    finish(trained.summary, train_tables(trained.title, trained.summary), wrote, as_json)
 
 
 @app.command("eval", short_help="Predict a split with a trained run and score it")
@@ -373,32 +327,17 @@ def eval_(
       cli eval --run runs/lanegap --split val --checkpoint best
       cli eval --run runs/lanegap --data prepared/other --device cpu --no-floor --json
     """
-    import torch
-
     from baselines.evaluate import evaluate
     from baselines.run_folder import EVALUATION_FILES
-    from benchmark.metric.table import console_tables, parse_metrics
-    from benchmark.tables import eval_table, finish
+    from benchmark.metric.table import parse_metrics
+    from benchmark.tables import eval_tables, finish, reported_errors
 
     with reported_errors():
         metrics = parse_metrics(metric, always=True)
-        if device == "cuda" and not torch.cuda.is_available():
-            raise ValueError(f"--device cuda: CUDA is not available to torch {torch.__version__} here")
-        if not run.is_dir():
-            raise ValueError(f"--run {run}: no such folder")
-        if not (run / "config.json").is_file():
-            raise ValueError(f"--run {run}: no config.json (expected a run folder written by cli train)")
         result = evaluate(run, data, split, device, floor=floor, bootstrap=bootstrap, checkpoint=checkpoint,
                           metrics=metrics)  # fmt: skip
-    table, notes = eval_table(result)
-    others, other_notes = console_tables(metrics, result)
-    heading = f"{run} on {result['split']} of {result['data']}: {result['frames']} frames"
     wrote = [run / name for name in EVALUATION_FILES if (run / name).is_file()]
-    if "submission" in result:  # OpenLane-V2 data: the predictions in its submission format too
-        submission = result["submission"]
-        notes.append(f"{submission['path']}: {submission['frames']} frames in OpenLane-V2's submission "
-                     f"format; {submission['confidence']}")  # fmt: skip
-    finish(result, [(heading, table), *others], wrote, as_json, notes + other_notes)
+    finish(result, eval_tables(run, result, metrics), wrote, as_json)
 
 
 @app.command(short_help="Score predicted lane graphs: TOPO, Junction TOPO, mIoU")
@@ -455,56 +394,20 @@ def score(
       cli score --pred runs/lanegap/predictions.parquet --gt prepared/av2
       cli score --pred pts_bbox/nuscmap_results.json --gt prepared/nusc --out runs/maptrv2
     """
-    from benchmark.metric.table import ALWAYS, console_tables, parse_metrics
+    from benchmark.metric.table import parse_metrics
     from benchmark.score import score as run_score
-    from benchmark.tables import finish, score_table, sweep_table
+    from benchmark.tables import finish, reported_errors, score_tables
 
     params = dict(step=step, match_radius=match_radius, reach_radius=reach_radius, matching=matching)
-    if range_:
-        params["bev_range"] = range_
+    params |= {"bev_range": range_} if range_ else {}
     with reported_errors():
         metrics = parse_metrics(metric)
         result = run_score(
             pred, gt, out, workers=workers, bootstrap=bootstrap, split=split, fmt=format_,
             class_name=class_name, min_score=min_score, sweep=sweep, metrics=metrics, **params,
         )  # fmt: skip
-    tables, notes = [], []
-    source = result.get("external") or {}
-    if all(always in metrics for always in ALWAYS):  # LaneGAP's metric: the main table
-        table, notes = score_table(result)
-        tables.append((score_heading(pred, gt, result), table))
-    elif source.get("lanes_read") is not None:  # a submission's frames are said without the main table too
-        notes.append(score_heading(pred, gt, result))
-    others, other_notes = console_tables(metrics, result)
-    tables, notes = tables + others, notes + other_notes
-    if source.get("not_computed"):
-        notes.append(f"not computed: {', '.join(source['not_computed'])} (the submission's traffic elements, "
-                     "traffic_element and topology_lcte, are not read)")  # fmt: skip
-    if result.get("sweep"):
-        tables.append(sweep_table(result))
     wrote = [out] if out is None or out.suffix.lower() == ".json" else [out / "metrics.json", out]
-    finish(result, tables, [path for path in wrote if path], as_json, notes)
-
-
-def score_heading(pred: Path, gt: Path, result: dict) -> str:
-    """cli score's heading: what was scored against what, and how many frames."""
-    where = f", split {', '.join(result['splits'])}" if result["splits"] else ", every frame"
-    source = result.get("external") or {}
-    if source.get("lanes_read") is not None:  # an OpenLane-V2 submission
-        method = f", method {source['method']}" if source.get("method") else ""
-        ignored = source["frames_in_file"] - result["frames_predicted"]
-        return (f"{pred} (OpenLane-V2 submission{method}) against {gt}{where}: {result['frames']} frames "
-                f"scored, {result['frames_predicted']} in the submission ({source['lanes_read']} lanes), "
-                f"{result['frames_missing']} missing (scored as empty)"
-                + (f"; {ignored} of its frames, not of the split, ignored" if ignored else ""))  # fmt: skip
-    if source.get("vectors_read") is None:  # our graph table
-        return (f"{pred} against {gt}{where}: {result['frames']} frames scored, "
-                f"{result['frames_predicted']} predicted, {result['frames_missing']} missing")  # fmt: skip
-    kept = f"{source['class_name']} above {source['min_score']:g}"  # a result file of another codebase
-    return (f"{pred} ({source['format']}, {kept}) against {gt}{where}: {result['frames']} frames scored "
-            f"(those in the file), {source['frames_not_in_file']} of the split not in the file; "
-            f"{source['vectors_kept']} vectors kept, {source['points_clipped']} points outside the range "
-            "clipped")  # fmt: skip
+    finish(result, score_tables(pred, gt, result, metrics), [path for path in wrote if path], as_json)
 
 
 @app.command(short_help="The ground truth through a representation and back")
@@ -529,13 +432,11 @@ def roundtrip(
       cli roundtrip --data prepared/av2 --via pixel --frame-stride 10 --workers 0
     """
     from benchmark.graphs.roundtrip import roundtrip as run_roundtrip
-    from benchmark.tables import finish, score_table
+    from benchmark.tables import finish, reported_errors, roundtrip_tables
 
     with reported_errors():
         result = run_roundtrip(data, via, out, merge_radius, workers, frame_stride)
-    table, notes = score_table(result)
-    heading = f"{data} through {via} and back: {result['frames']} frames"
-    finish(result, [(heading, table)], [out] if out else [], as_json, notes)
+    finish(result, roundtrip_tables(data, via, result), [out] if out else [], as_json)
 
 
 @app.command(short_help="Tables and pictures comparing finished runs")
@@ -570,18 +471,17 @@ def report(
     """
     from benchmark.metric.table import parse_metrics
     from benchmark.report.writer import write_report
-    from benchmark.tables import finish, report_tables
+    from benchmark.tables import Printout, finish, report_tables, reported_errors
 
     with reported_errors():
         metrics = parse_metrics(metric, always=True)
         result = write_report(runs, out, roundtrip, workers, reference=reference, draws=bootstrap,
                               metrics=metrics, browser_frames=browser_frames,
                               thumbnails=thumbnails)  # fmt: skip
-
     shown, tables = report_tables(result)
     summary = {"report": str(result.path), "pictures": [str(p) for p in result.pictures], "tables": tables}
-    pictures = [f"{len(result.pictures)} pictures beside it"]
-    finish(summary, shown, [result.path, result.html], as_json, pictures)
+    printout = Printout(shown, [f"{len(result.pictures)} pictures beside it"])
+    finish(summary, printout, [result.path, result.html], as_json)
 
 
 @app.command(short_help="One frame: ground truth beside prediction, as a PNG")
@@ -602,14 +502,11 @@ def viz(
       cli viz --pred runs/lanegap/predictions.parquet --gt prepared/av2 --frame FRAME_ID --camera --out f.png
     """
     from benchmark.report.figures import viz as run_viz
+    from benchmark.tables import reported_errors, viz_line
 
     with reported_errors():
         result = run_viz(pred, gt, frame, out, camera)
-    directed = result["scores"]["directed"]
-    typer.echo(
-        f"wrote {out}: frame {result['frame_id']}, directed TOPO F1 {directed['topo']['f1']:.3f}, "
-        f"Junction TOPO F1 {directed['junction_topo']['f1']:.3f}"
-    )
+    typer.echo(viz_line(out, result))
 
 
 if __name__ == "__main__":

@@ -220,6 +220,17 @@ def openlanev2_submission(run_dir: Path, graphs: dict[str, LaneGraph], grounds: 
             "lanes": sum(len(frame.points) for frame in lanes.values()), "confidence": UNSCORED}  # fmt: skip
 
 
+def check_options(run_dir: Path, device: str | None) -> None:
+    """`cli eval`'s refusals before any work, each in one line: --device cuda where torch has no CUDA, a --run
+    that is no folder or holds no config.json."""
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"--device cuda: CUDA is not available to torch {torch.__version__} here")
+    if not run_dir.is_dir():
+        raise ValueError(f"--run {run_dir}: no such folder")
+    if not (run_dir / "config.json").is_file():
+        raise ValueError(f"--run {run_dir}: no config.json (expected a run folder written by cli train)")
+
+
 def evaluate(
     run_dir: Path,
     data_dir: Path | None = None,
@@ -236,8 +247,9 @@ def evaluate(
     `bootstrap` draws over the frames (0: none), with the weights of `checkpoint` (last or best). The floor's
     prior search is cached in DATA/floor_cache. `metrics`: LaneGAP's and the other published ones chosen
     (benchmark/metric/table.py; LaneGAP's among them), each other one under its name in metrics.json."""
-    check_draws(bootstrap)
     run_dir = Path(run_dir)
+    check_options(run_dir, device)
+    check_draws(bootstrap)
     device_ = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
     built, config, source = load_model(run_dir, device_, checkpoint)
     cuda_settings(device_)  # the frame rates under the training's settings

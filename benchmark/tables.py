@@ -1,9 +1,12 @@
 """The rich tables that the commands of cli.py print, one function per command, from the plain results
-(dicts, the report) those commands get; with the notes that go under a table."""
+(dicts, the report) those commands get; with the notes that go under a table. Also how a command ends:
+its result (finish), bad input's one line (reported_errors), and `cli --version`'s line."""
 
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import typer
@@ -11,8 +14,23 @@ from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
+from benchmark.metric.table import ALWAYS, console_tables
+
 if TYPE_CHECKING:
+    from pathlib import Path
+
+    from benchmark.metric.table import Metric
     from benchmark.report.writer import Report
+
+
+@dataclass
+class Printout:
+    """What a command prints above the paths it wrote: its tables, each under its heading, and the notes
+    under them."""
+
+    tables: list[tuple[str, Table]]
+    notes: list[str] = field(default_factory=list)
+
 
 MODES = ("directed", "undirected")
 METRICS = (("TOPO", "topo"), ("Junction TOPO", "junction_topo"))  # (shown name, result key)
@@ -21,6 +39,30 @@ METRICS = (("TOPO", "topo"), ("Junction TOPO", "junction_topo"))  # (shown name,
 def number(value) -> str:
     """A float with two decimals, anything else as it is."""
     return f"{value:.2f}" if isinstance(value, float) else str(value)
+
+
+def synth_tables(summary: dict) -> Printout:
+    """`cli synth`'s logs under a heading naming the seed and each world's nuScenes map."""
+    from pipeline.synth import summary_table
+
+    worlds = ", ".join(f"{world['index']} {world['nuscenes_map']}" for world in summary["worlds"])
+    return Printout([(f"synth, seed {summary['seed']}: worlds {worlds}", summary_table(summary))])
+
+
+def prepare_tables(summary: dict, dataset: str, root: Path, split_scheme: str) -> Printout:
+    """`cli prepare`'s tables: its summary, the geographic split's shares where it made one and the leakage
+    where there are splits besides training; with the leakage's line under them."""
+    from pipeline.splits.leakage import leakage_line
+
+    tables = [(f"prepared {dataset} from {root}", prepare_table(summary))]
+    leakage = summary["leakage"]
+    if "split_shares" in summary:
+        tables.append(("geographic split: shares of the kept frames (target)",
+                       split_shares_table(summary["split_shares"])))  # fmt: skip
+    if leakage["splits"]:
+        tables.append(("leakage: each frame's distance to the nearest training frame of its city, and its "
+                       "window's overlap with theirs", leakage_table(leakage)))  # fmt: skip
+    return Printout(tables, [leakage_line(leakage, split_scheme)])
 
 
 def prepare_table(summary: dict) -> Table:
@@ -83,6 +125,11 @@ def train_table(summary: dict) -> Table:
     return table
 
 
+def train_tables(title: str, summary: dict) -> Printout:
+    """`cli train`'s summary under the title of what was trained on what."""
+    return Printout([(title, train_table(summary))])
+
+
 def cell(value: float | None) -> str:
     return "-" if value is None else f"{value:.3f}"
 
@@ -120,6 +167,19 @@ def eval_table(metrics: dict) -> tuple[Table, list[str]]:
     return table, notes
 
 
+def eval_tables(run: Path, result: dict, metrics: tuple[Metric, ...]) -> Printout:
+    """`cli eval`'s tables: its metrics under a heading naming the run, split, data and frames, then the
+    other metrics' tables; with their notes (on OpenLane-V2 data, the submission written among them)."""
+    table, notes = eval_table(result)
+    if "submission" in result:  # OpenLane-V2 data: the predictions in its submission format too
+        submission = result["submission"]
+        notes.append(f"{submission['path']}: {submission['frames']} frames in OpenLane-V2's submission "
+                     f"format; {submission['confidence']}")  # fmt: skip
+    others, other_notes = console_tables(metrics, result)
+    heading = f"{run} on {result['split']} of {result['data']}: {result['frames']} frames"
+    return Printout([(heading, table), *others], notes + other_notes)
+
+
 def score_table(result: dict) -> tuple[Table, list[str]]:
     """A score result (`cli score`, `cli roundtrip`) as P / R / F1 (and its bootstrap interval) and mIoU,
     with its notes."""
@@ -139,6 +199,53 @@ def score_table(result: dict) -> tuple[Table, list[str]]:
     return table, notes
 
 
+def score_tables(pred: Path, gt: Path, result: dict, metrics: tuple[Metric, ...]) -> Printout:
+    """`cli score`'s tables: LaneGAP's metric (where chosen) under score_heading, the other metrics' tables
+    and, with --sweep, the F1 by kept score; with their notes."""
+    tables, notes = [], []
+    source = result.get("external") or {}
+    if all(always in metrics for always in ALWAYS):  # LaneGAP's metric: the main table
+        table, notes = score_table(result)
+        tables.append((score_heading(pred, gt, result), table))
+    elif source.get("lanes_read") is not None:  # a submission's frames are said without the main table too
+        notes.append(score_heading(pred, gt, result))
+    others, other_notes = console_tables(metrics, result)
+    tables, notes = tables + others, notes + other_notes
+    if source.get("not_computed"):
+        notes.append(f"not computed: {', '.join(source['not_computed'])} (the submission's traffic elements, "
+                     "traffic_element and topology_lcte, are not read)")  # fmt: skip
+    if result.get("sweep"):
+        tables.append(sweep_table(result))
+    return Printout(tables, notes)
+
+
+def score_heading(pred: Path, gt: Path, result: dict) -> str:
+    """cli score's heading: what was scored against what, and how many frames."""
+    where = f", split {', '.join(result['splits'])}" if result["splits"] else ", every frame"
+    source = result.get("external") or {}
+    if source.get("lanes_read") is not None:  # an OpenLane-V2 submission
+        method = f", method {source['method']}" if source.get("method") else ""
+        ignored = source["frames_in_file"] - result["frames_predicted"]
+        return (f"{pred} (OpenLane-V2 submission{method}) against {gt}{where}: {result['frames']} frames "
+                f"scored, {result['frames_predicted']} in the submission ({source['lanes_read']} lanes), "
+                f"{result['frames_missing']} missing (scored as empty)"
+                + (f"; {ignored} of its frames, not of the split, ignored" if ignored else ""))  # fmt: skip
+    if source.get("vectors_read") is None:  # our graph table
+        return (f"{pred} against {gt}{where}: {result['frames']} frames scored, "
+                f"{result['frames_predicted']} predicted, {result['frames_missing']} missing")  # fmt: skip
+    kept = f"{source['class_name']} above {source['min_score']:g}"  # a result file of another codebase
+    return (f"{pred} ({source['format']}, {kept}) against {gt}{where}: {result['frames']} frames scored "
+            f"(those in the file), {source['frames_not_in_file']} of the split not in the file; "
+            f"{source['vectors_kept']} vectors kept, {source['points_clipped']} points outside the range "
+            "clipped")  # fmt: skip
+
+
+def roundtrip_tables(data: Path, via: str, result: dict) -> Printout:
+    """`cli roundtrip`'s scores under a heading naming the data, the representation and the frames."""
+    table, notes = score_table(result)
+    return Printout([(f"{data} through {via} and back: {result['frames']} frames", table)], notes)
+
+
 def sweep_table(result: dict) -> tuple[str, Table]:
     """`cli score --sweep`: the F1 at each kept score of a result file, the one scored above marked."""
     table = Table(
@@ -150,6 +257,13 @@ def sweep_table(result: dict) -> tuple[str, Table]:
         table.add_row(f"{row['min_score']:g}{mark}", str(row["vectors_kept"]),
                       *(f"{row[mode][metric]:.3f}" for mode in MODES for _, metric in METRICS))  # fmt: skip
     return "F1 by kept score (--sweep; *: the one scored above; no intervals)", table
+
+
+def viz_line(out: Path, result: dict) -> str:
+    """`cli viz`'s line: the picture written, its frame and the frame's directed F1s."""
+    directed = result["scores"]["directed"]
+    return (f"wrote {out}: frame {result['frame_id']}, directed TOPO F1 {directed['topo']['f1']:.3f}, "
+            f"Junction TOPO F1 {directed['junction_topo']['f1']:.3f}")  # fmt: skip
 
 
 def plain(cell: str) -> str:
@@ -180,9 +294,9 @@ def report_tables(result: Report) -> tuple[list[tuple[str, Table]], list[dict]]:
     return shown, tables
 
 
-def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[str] = ()) -> None:
+def finish(result: dict, printout: Printout, wrote: list, as_json: bool) -> None:
     """A command's end: with --json its result as one JSON line on stdout (and what it wrote on stderr);
-    else its (heading, table) pairs, notes and the paths it wrote."""
+    else its printout (tables under their headings, notes) and the paths it wrote."""
     written = f"wrote {', '.join(str(path) for path in wrote)}" if wrote else ""
     if as_json:
         typer.echo(json.dumps(result))
@@ -191,9 +305,41 @@ def finish(result: dict, tables: list, wrote: list, as_json: bool, notes: list[s
         return
     console = Console()
     one_line = not console.is_terminal  # a log keeps each line whole; a terminal wraps it between words
-    for heading, table in tables:
+    for heading, table in printout.tables:
         console.print(Text(heading, style="bold"), soft_wrap=one_line)  # a table title wraps at its width
         console.print(table)
-    for line in [*notes, written]:
+    for line in [*printout.notes, written]:
         if line:
             console.print(Text(line), soft_wrap=one_line)
+
+
+@contextmanager
+def reported_errors():
+    """Bad input (DataError is a ValueError), or --executor ray without Ray installed (its install hint), ends
+    the command with its message and exit code 1."""
+    from pipeline.executor import RayMissing
+
+    try:
+        yield
+    except (ValueError, FileNotFoundError, FileExistsError, RayMissing) as error:
+        message = str(error)
+        if "Original Traceback" in message:  # re-raised from a DataLoader worker: its last line says it
+            message = message.strip().splitlines()[-1].partition(": ")[2]
+        typer.secho(f"error: {message}", fg="red", err=True)
+        raise typer.Exit(1) from error
+
+
+def version_text() -> str:
+    """The installed package's version, the metric's metric_version and the prepared data's schema_version
+    (CHANGELOG.md says what each bump means for old files); imports neither torch nor the models."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    from benchmark.metric.params import METRIC_VERSION
+    from pipeline.io import SCHEMA_VERSION
+
+    try:
+        package = version("lanegraph")
+    except PackageNotFoundError:  # a checkout on sys.path, never installed
+        package = "(not installed)"
+    versions = f"metric_version {METRIC_VERSION}, prepared-data schema_version {SCHEMA_VERSION}"
+    return f"lanegraph {package} ({versions})"

@@ -11,7 +11,7 @@ DEMO_EVAL_EVERY := 4
 CLI := .venv/bin/cli
 KERNELS := pipeline/_aot_kernels.json
 
-.PHONY: demo demo-all kernels test test-learning wheel-smoke gpu-check gpu-smoke gpu-dryrun wheelhouse bench \
+.PHONY: demo demo-all kernels chromium test test-learning wheel-smoke gpu-check gpu-smoke gpu-dryrun wheelhouse bench \
 	bench-train bench-step lint clean
 
 # The lock is the whole closure, installed --no-deps: one OpenCV, the headless build (av2 declares the GUI
@@ -67,9 +67,21 @@ demo: $(STAMP)
 demo-all: $(STAMP)
 	$(call demo_pipeline,$(DEMO_ALL),hdmapnet lanegap maptr stsu,--reference paper)
 
+# `make chromium`: Debian's headless browser and its driver for report.html's tests (tests/test_report_html.py,
+# selenium pointed at /usr/bin/chromium and /usr/bin/chromedriver; never a browser download). Installed with
+# apt-get where it exists and they are missing; elsewhere (or without root) nothing is installed, the build
+# goes on and those tests skip with one line.
+chromium:
+	@if [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ]; then :; \
+	elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+		(apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1 \
+		|| (apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1)) \
+		|| echo "chromium: apt-get could not install chromium chromium-driver: report.html's browser tests skip"; \
+	else echo "chromium: no apt-get (or not root): report.html's browser tests skip"; fi
+
 # The learning contract (tests/test_baselines_learning.py) runs alone, not in `make test`: five trainings
 # of the tiny preset's 880 steps take 20-30 minutes on 2 cores. LANEGRAPH_LEARNING_SEED=2 for another seed.
-test: $(STAMP) $(KERNELS)
+test: $(STAMP) $(KERNELS) chromium
 	LANEGRAPH_AOT_REQUIRED=$$(test -f $(KERNELS) && echo 1) $(PY) -m pytest -n 2 tests
 
 test-learning: $(STAMP)

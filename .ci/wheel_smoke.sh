@@ -30,7 +30,8 @@ wheel=$(echo "$tmp"/dist/lanegraph-*.whl)
 "$PYTHON" - "$wheel" <<'EOF'
 import sys, zipfile
 names = zipfile.ZipFile(sys.argv[1]).namelist()
-needed = ["cli.py", "benchmark/report/paper_reference.toml", "pipeline/io.py", "baselines/models/__init__.py"]
+needed = ["cli.py", "benchmark/report/paper_reference.toml", "pipeline/io.py", "baselines/models/__init__.py",
+          "benchmark/report/assets/browser.js", "benchmark/report/assets/style.css"]
 missing = [name for name in needed if name not in names]
 assert not missing, f"the wheel lacks {missing}"
 assert not any(name.startswith(("tests/", "tools/")) for name in names), "the wheel holds tests/ or tools/"
@@ -87,5 +88,6 @@ expected=$("$venv/python" -c 'import importlib.metadata as m; print(m.version("l
 "$venv/cli" report --runs runs --out report --reference paper --bootstrap 20 >report.log
 grep -q "tab:modeling" report/report.md || fail "report.md holds no paper reference table"
 ls report/*.png >/dev/null || fail "report/ holds no picture"
+grep -q 'id="browser-data"' report/report.html || fail "report.html holds no frame browser"
 
 step "done"

@@ -60,7 +60,7 @@ def made(synth_prepared, tmp_path_factory) -> dict:
     shutil.copytree(runs / "shifted", root / "old" / "old")
     (root / "old" / "old" / bootstrap.FRAME_COUNTS).unlink()
     report = write_report([runs, root / "old"], root / "report", draws=0)
-    return {"root": root, "report": report, "gt": gt, "val": val, "shifted": shifted, "half": half,
+    return {"root": root, "data": data, "report": report, "gt": gt, "val": val, "shifted": shifted, "half": half,
             "subset": subset, "runs": runs}  # fmt: skip
 
 
@@ -99,6 +99,21 @@ def test_keep_frames_says_why(made):
     reasons = {kept.reasons[r] for key in kept.frames for r in kept.why[key]}
     assert any("largest differences" in r for r in reasons) and any("lowest" in r for r in reasons)
     assert keep_frames(blocks, 9) == kept  # seeded
+
+
+def test_thumbnails_are_each_frames_front_camera(made):
+    import base64
+
+    import cv2
+
+    from benchmark.report.browser import THUMBNAIL_WIDTH, front_thumbnails
+
+    thumbs, note = front_thumbnails(made["data"], made["val"][:2])
+    assert sorted(thumbs) == made["val"][:2] and note == ""
+    for uri in thumbs.values():
+        assert uri.startswith("data:image/jpeg;base64,")
+        jpeg = np.frombuffer(base64.b64decode(uri.partition(",")[2]), np.uint8)
+        assert cv2.imdecode(jpeg, cv2.IMREAD_COLOR).shape[1] == THUMBNAIL_WIDTH
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -259,7 +259,7 @@
 
   function drawing(graph, shares, range, label) {
     const [x0, x1, y0, y1] = range;
-    const width = 300, height = Math.round(width * (y1 - y0) / (x1 - x0));
+    const width = 220, height = Math.round(width * (y1 - y0) / (x1 - x0));
     const svg = svgElement("svg", {viewBox: x0 + " " + -y1 + " " + (x1 - x0) + " " + (y1 - y0), width, height,
                                    role: "img", "aria-label": label});
     svg.appendChild(svgElement("rect", {x: x0, y: -y1, width: x1 - x0, height: y1 - y0, fill: S.background}));
@@ -400,5 +400,6 @@
   refresh(false);
   window.addEventListener("hashchange", fromAddress);
   fromAddress();
+  performance.mark("browser-ready");
   document.body.setAttribute("data-browser", "ready");
 })();

@@ -60,8 +60,8 @@ def made(synth_prepared, tmp_path_factory) -> dict:
     shutil.copytree(runs / "shifted", root / "old" / "old")
     (root / "old" / "old" / bootstrap.FRAME_COUNTS).unlink()
     report = write_report([runs, root / "old"], root / "report", draws=0)
-    return {"root": root, "data": data, "report": report, "gt": gt, "val": val, "shifted": shifted, "half": half,
-            "subset": subset, "runs": runs}  # fmt: skip
+    return {"root": root, "data": data, "report": report, "gt": gt, "val": val, "shifted": shifted,
+            "half": half, "subset": subset, "runs": runs}  # fmt: skip
 
 
 def test_page_is_one_file_with_every_table(made):

@@ -5,7 +5,8 @@ The runs, written by hand on the session's small synthetic AV2 split (conftest's
 validation frames; tests/test_report_external.py's helpers, nothing trained): `shifted`, a run of ours
 whose predictions are the ground truth shifted 0.2 m with edges dropped; `half`, the ground truth on every
 other frame and `shifted`'s elsewhere; `subset`, an external MapTRv2 file's run holding the last 12 frames.
-And `old`, a run folder from before per-frame counts (no frame_counts.parquet).
+And `old`, a run folder from before per-frame counts (no frame_counts.parquet), and `older`, one whose
+metrics.json lacks a key (an older format).
 """
 
 from __future__ import annotations
@@ -59,6 +60,11 @@ def made(synth_prepared, tmp_path_factory) -> dict:
     scored_folder(runs / "subset", {f: gt[f] for f in subset}, {f: gt[f] for f in subset}, extra)
     shutil.copytree(runs / "shifted", root / "old" / "old")
     (root / "old" / "old" / bootstrap.FRAME_COUNTS).unlink()
+    shutil.copytree(runs / "shifted", root / "old" / "older")  # a metrics.json of an older format
+    metrics = json.loads((root / "old" / "older" / "metrics.json").read_text())
+    (root / "old" / "older" / "metrics.json").write_text(
+        json.dumps({k: v for k, v in metrics.items() if k != "fps"})
+    )
     report = write_report([runs, root / "old"], root / "report", draws=0)
     return {"root": root, "data": data, "report": report, "gt": gt, "val": val, "shifted": shifted,
             "half": half, "subset": subset, "runs": runs}  # fmt: skip
@@ -72,6 +78,7 @@ def test_page_is_one_file_with_every_table(made):
     for picture in made["report"].pictures:  # every picture inline, none linked
         assert f'src="{picture.name}"' not in page
     assert "old: not in the frame browser: no frame_counts.parquet" in page
+    assert "older: not in the frame browser: " in page and "metrics.json lacks fps" in page
 
 
 def test_frame_scores_pool_as_the_metric():

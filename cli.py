@@ -431,7 +431,7 @@ def roundtrip(
       cli roundtrip --data prepared/av2 --via path --out roundtrip_path.json
       cli roundtrip --data prepared/av2 --via pixel --frame-stride 10 --workers 0
     """
-    from benchmark.graphs.roundtrip import roundtrip as run_roundtrip
+    from benchmark.roundtrip import roundtrip as run_roundtrip
     from benchmark.tables import finish, reported_errors, roundtrip_tables
 
     with reported_errors():

@@ -22,8 +22,8 @@ from baselines.models.hdmapnet import (
     tiny_head,
 )
 from benchmark.graph_table import default_range, graphs_from_table
-from benchmark.graphs.roundtrip import rebuild, roundtrip
 from benchmark.metric.params import MetricParams
+from benchmark.roundtrip import rebuild, roundtrip
 from benchmark.score import score_pairs
 from pipeline.geometry import Range
 from pipeline.io import decode_raster, read_table

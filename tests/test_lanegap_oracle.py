@@ -12,8 +12,8 @@ from baselines.data import PreparedDataset
 from baselines.models import build, resolve_config
 from benchmark.graph_table import default_range, graphs_from_table
 from benchmark.graphs.path2graph import path2graph
-from benchmark.graphs.roundtrip import roundtrip
 from benchmark.metric.params import MetricParams
+from benchmark.roundtrip import roundtrip
 from benchmark.score import score_pairs
 from pipeline.geometry import Range
 from pipeline.io import read_table

@@ -20,8 +20,8 @@ from baselines.models import build, maptr, resolve_config, stsu
 from baselines.models.piecewise import AssociationHead, association_loss, association_targets
 from benchmark.graph_table import default_range, graphs_from_table
 from benchmark.graphs.piece2graph import piece2graph
-from benchmark.graphs.roundtrip import roundtrip
 from benchmark.metric.params import MetricParams
+from benchmark.roundtrip import roundtrip
 from benchmark.score import score_pairs
 from pipeline.geometry import Range
 from pipeline.io import read_table

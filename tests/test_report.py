@@ -53,8 +53,8 @@ def made(tmp_path_factory) -> dict:
     from baselines.evaluate import evaluate
     from baselines.models import resolve_config
     from baselines.train import train
-    from benchmark.graphs.roundtrip import roundtrip
     from benchmark.metric.params import MetricParams
+    from benchmark.roundtrip import roundtrip
     from pipeline.prepare import prepare
     from pipeline.synth import synth
     from pipeline.targets import TargetOptions

@@ -11,10 +11,10 @@ from hypothesis import strategies as st
 from benchmark.graphs.path2graph import path2graph
 from benchmark.graphs.piece2graph import piece2graph, suppress_duplicates
 from benchmark.graphs.pixel2graph import pixel2graph
-from benchmark.graphs.roundtrip import roundtrip
 from benchmark.metric.densify import densify
 from benchmark.metric.params import MetricParams
 from benchmark.metric.totals import score_graphs
+from benchmark.roundtrip import roundtrip
 from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
 from pipeline.raster import Grid, rasterize

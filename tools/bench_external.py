@@ -27,7 +27,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from benchmark.graphs.roundtrip import polylines_by_frame
+from benchmark.roundtrip import polylines_by_frame
 from pipeline.geometry import resample_polylines
 from pipeline.io import SCHEMAS, read_table
 

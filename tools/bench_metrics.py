@@ -24,8 +24,8 @@ import numpy as np
 
 from benchmark.graph_table import graph_row, graphs_from_table
 from benchmark.graphs.path2graph import path2graph
-from benchmark.graphs.roundtrip import polylines_by_frame
 from benchmark.metric.params import MetricParams
+from benchmark.roundtrip import polylines_by_frame
 from benchmark.score import score_pairs
 from pipeline.io import SCHEMAS, read_table
 from pipeline.lane_graph import LaneGraph

@@ -19,6 +19,9 @@ from pipeline.synth.openlanev2_writer import frame_lanes, write_from_av2
 SEED = 1
 RING = {"ring_front_center", "ring_front_left", "ring_front_right", "ring_side_left", "ring_side_right",
         "ring_rear_left", "ring_rear_right"}  # fmt: skip
+# how far the 201 evenly spaced points of a lane may cut a corner of the map's polyline (1.1 cm at most on
+# the real logs of ../shared/data)
+CORNER_CUT_M = 0.05
 
 
 @pytest.fixture(scope="module")
@@ -134,32 +137,72 @@ def test_links_join_coinciding_points_and_every_inside_successor_is_linked(out):
     assert links > 50
 
 
-def test_lanes_are_the_map_clipped_to_the_range(out):
-    """The lanes of a frame cover the map's centerlines within the range: their total length equals
-    shapely's clip of the av2 API's centerlines moved by the av2 API's inverse pose."""
+def test_lanes_are_the_map_clipped_to_the_range_and_resampled(out):
+    """The lanes of a frame are the map's centerlines within the range, resampled: every written point lies on
+    shapely's clip of the av2 API's centerlines moved by the av2 API's inverse pose, every vertex of that clip
+    lies within CORNER_CUT_M of the lanes (corners that 201 points cut), their length the clip's to 1e-4."""
+    import shapely
     from av2.map.map_api import ArgoverseStaticMap
     from av2.utils.io import read_city_SE3_ego
-    from shapely.geometry import LineString, box
+    from shapely.geometry import LineString, MultiLineString, box
 
     for path in frame_files(out / "openlanev2"):
         log = out / "av2" / "sensor" / path.parents[2].name / path.parents[1].name
         static_map = ArgoverseStaticMap.from_map_dir(log / "map", build_raster=False)
         city_to_ego = read_city_SE3_ego(log)[int(path.stem)].inverse()
         area = box(-50, -25, 50, 25)
-        expected = sum(
+        clipped = shapely.union_all([
             LineString(city_to_ego.transform_point_cloud(static_map.get_lane_segment_centerline(i))[:, :2])
             .intersection(area)
-            .length
             for i in static_map.vector_lane_segments
-        )
+        ])  # fmt: skip
         lanes = annotated(json.loads(path.read_text()))
-        length = sum(LineString(p[:, :2]).length for p in lanes.points)
-        assert length == pytest.approx(expected, rel=1e-9, abs=1e-6)
+        written = MultiLineString([p[:, :2] for p in lanes.points])
+        points = shapely.points(np.concatenate(lanes.points)[:, :2])
+        assert shapely.distance(points, clipped).max() < 1e-9
+        assert 0 < clipped.hausdorff_distance(written) < CORNER_CUT_M
+        assert written.length == pytest.approx(clipped.length, rel=1e-4)
 
 
-def test_graph_of_the_written_lanes_equals_the_av2_crop(out):
-    """graph_of_annotated of each written frame at 30 x 60 m is the graph that prepare crops from the AV2 log:
-    the same vertices (to the float) and edges."""
+def test_written_lanes_have_201_points_evenly_along(out):
+    """OpenLane-V2's annotations: 201 points a lane, even in arc length (ground plane): every step the
+    spacing except the chords that cut a corner of the map's polyline (shorter)."""
+    lanes_seen = 0
+    for path in frame_files(out / "openlanev2"):
+        lanes = annotated(json.loads(path.read_text()))
+        for points in lanes.points:
+            assert points.shape == (201, 3)
+            steps = np.hypot(*np.diff(points[:, :2], axis=0).T)
+            even = np.isclose(steps, steps.max(), rtol=1e-6, atol=0)
+            assert even.mean() > 0.9 and steps.min() > 0
+        lanes_seen += len(lanes)
+    assert lanes_seen > 100
+
+
+def graph_matches(ours, av2) -> None:
+    """graph_of_annotated's graph of resampled lanes against crop_lane_graph's of the map: the same junctions
+    (vertices of in- or out-degree >= 2, the lanes' shared end points, at the same float32 positions) and
+    each graph's vertices within CORNER_CUT_M of the other's edges."""
+    import shapely
+
+    def junctions(graph) -> set:
+        n = len(graph.x)
+        fork = (np.bincount(graph.src, minlength=n) >= 2) | (np.bincount(graph.dst, minlength=n) >= 2)
+        return {(graph.x[v], graph.y[v]) for v in np.flatnonzero(fork)}
+
+    def edges(graph):
+        ends = np.stack([graph.x, graph.y], axis=1).astype(np.float64)
+        return shapely.multilinestrings(np.stack([ends[graph.src], ends[graph.dst]], axis=1))
+
+    assert junctions(ours) == junctions(av2) and len(junctions(av2)) > 0
+    for a, b in ((ours, av2), (av2, ours)):
+        vertices = shapely.points(np.stack([a.x, a.y], axis=1).astype(np.float64))
+        assert shapely.distance(vertices, edges(b)).max() < CORNER_CUT_M
+
+
+def test_graph_of_the_written_lanes_is_the_av2_crop(out):
+    """graph_of_annotated of each written frame at 30 x 60 m is the graph that prepare crops from the AV2 log,
+    its lanes resampled: the same junctions, the same lanes within CORNER_CUT_M (graph_matches)."""
     from pipeline.adapters.av2 import frame_poses, frame_timestamps, read_lanes
     from pipeline.geometry import Range
     from pipeline.targets import rigid_inverse
@@ -173,8 +216,7 @@ def test_graph_of_the_written_lanes_equals_the_av2_crop(out):
             ours = graph_of_annotated(annotated(json.loads(path.read_text())), rng)
             av2 = crop_lane_graph(lane_map, rigid_inverse(pose), rng)
             assert len(av2.src) > 10
-            for field in ("x", "y", "src", "dst"):
-                np.testing.assert_array_equal(getattr(ours, field), getattr(av2, field))
+            graph_matches(ours, av2)
 
 
 def test_same_log_same_bytes_and_a_rewrite_removes_stale_frames(out, tmp_path):
@@ -224,19 +266,40 @@ def test_clipped_lanes_hand_computed():
     ids: dict = {}
     got = frame_lanes(LaneMap.from_lanes(lanes), np.eye(4), ids)
     # ego frame x forward = BEV y, y left = -BEV x; the clip at y = -50 lies 1/6 of the way to z 6: z 1;
-    # the clip at y = 50 a quarter of the way from z 10 to z 14: z 11
+    # the clip at y = 50 a quarter of the way from z 10 to z 14: z 11; each piece 201 points evenly along,
+    # and along a and b z = 6 + x / 10 (both slopes are 1 in 10)
+    x = np.linspace(-50, 40, 201), np.linspace(40, 50, 201)
+    across = np.linspace(20, -25, 201)
     expected = [
-        [[-50, 0, 1], [0, 0, 6], [40, 0, 10]],
-        [[40, 0, 10], [50, 0, 11]],
-        [[0, 20, 0], [0, -25, 0]],
-        [[10, -25, 0], [10, 20, 0]],
+        np.column_stack([x[0], np.zeros(201), 6 + x[0] / 10]),
+        np.column_stack([x[1], np.zeros(201), 6 + x[1] / 10]),
+        np.column_stack([np.zeros(201), across, np.zeros(201)]),
+        np.column_stack([np.full(201, 10.0), across[::-1], np.zeros(201)]),
     ]
     assert len(got) == 4
     for points, want in zip(got.points, expected, strict=True):
         np.testing.assert_allclose(points, want, atol=1e-12)
+    np.testing.assert_array_equal(got.points[0][-1], [40, 0, 10])  # the shared point, exactly
+    np.testing.assert_array_equal(got.points[1][0], got.points[0][-1])
     np.testing.assert_array_equal(got.links, [[0, 1, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]])
     assert got.ids == ["0", "1", "2", "3"]
     # a later frame keeps the ids of the pieces it shares: lane b alone in range is still lane 1
     later = frame_lanes(LaneMap.from_lanes(lanes), np.array([[1.0, 0, 0, 0], [0, 1, 0, -100], [0, 0, 1, 0],
                                                              [0, 0, 0, 1]]), ids)  # fmt: skip
     assert later.ids == ["1"] and later.links.shape == (1, 1)
+
+
+def test_resampled_lane_cuts_a_corner_by_its_spacing_hand_computed():
+    """An L of legs 10 m (z 0 -> 1) and 5 m (z 1 -> 1): 201 points 0.075 m apart along it; point 133 lies
+    9.975 m up the first leg, point 134 0.05 m along the second, so the corner (10, 0) is cut; ends kept."""
+    from pipeline.synth.openlanev2_writer import resampled_lane
+
+    got = resampled_lane(np.array([[0.0, 0, 0], [10, 0, 1], [10, 5, 1]]), 201)
+    k = np.arange(201)
+    s = 0.075 * k
+    expected = np.where((s <= 10)[:, None], np.column_stack([s, 0 * s, s / 10]),
+                        np.column_stack([np.full(201, 10.0), s - 10, np.ones(201)]))  # fmt: skip
+    np.testing.assert_allclose(got, expected, atol=1e-12)
+    np.testing.assert_allclose(got[133], [9.975, 0, 0.9975], atol=1e-12)
+    np.testing.assert_allclose(got[134], [10, 0.05, 1], atol=1e-12)
+    np.testing.assert_array_equal(got[[0, -1]], [[0, 0, 0], [10, 5, 1]])

@@ -1,8 +1,9 @@
 """OpenLane-V2's layout (subset A) written from an AV2 sensor log, real or synthetic:
 `ROOT/<split>/<segment_id>/info/<timestamp>.json`, one frame file per frame of the log, its lanes the map's
 lane segments in the frame's ego frame (x forward, y left, z up) clipped to +-50 m along and +-25 m across,
-its topology_lclc the map's successors, its seven ring cameras from the log's calibration and its images
-hard-linked to `ROOT/<split>/<segment_id>/image/<camera>/<timestamp>.jpg` (OpenLane-V2's data/README.md).
+each resampled to 201 points evenly along it as OpenLane-V2 annotates its centerlines, its topology_lclc
+the map's successors, its seven ring cameras from the log's calibration and its images hard-linked to
+`ROOT/<split>/<segment_id>/image/<camera>/<timestamp>.jpg` (OpenLane-V2's data/README.md).
 
 No traffic elements: AV2's maps hold none, so `traffic_element` is empty and `topology_lcte` is (n, 0).
 """
@@ -29,6 +30,9 @@ FORMAT_VERSION = "v2.0"  # the OpenLane-V2 release whose data/README.md describe
 ALONG_M, ACROSS_M = 50.0, 25.0  # OpenLane-V2 annotates lanes within +-50 m along (ego x) and +-25 m across
 # the same box in the BEV frame (x right, y forward), where prepare clips: the same arithmetic as its crop
 OPENLANEV2_RANGE = Range(-ACROSS_M, ACROSS_M, -ALONG_M, ALONG_M)
+# OpenLane-V2's annotated centerlines have 201 points each (its issue #21); its val/test evaluation keeps
+# every 20th, so a lane of fewer points would be scored as its first point alone
+LANE_POINTS = 201
 
 
 @dataclass
@@ -150,7 +154,8 @@ def frame_lanes(
 ) -> AnnotatedLanes:
     """The map's lanes in one frame as OpenLane-V2 annotates them: each lane moved into the BEV frame as
     crop_lane_graph moves it, clipped to OPENLANEV2_RANGE (a lane that leaves and re-enters gives two lanes),
-    heights interpolated along the clip, then turned into OpenLane-V2's ego frame (an exact swap of axes);
+    heights interpolated along the clip, resampled to LANE_POINTS points (resampled_lane: its end points
+    kept, so linked lanes still share one), then turned into OpenLane-V2's ego frame (a swap of axes);
     lane i -> j linked where j's lane succeeds i's and i's piece holds its lane's end, j's its lane's start.
     piece_ids: (lane index, piece of that lane) -> id, shared by a log's frames: ids stay in a sequence."""
     ego_xy = -world_to_bev[:3, :3].T @ world_to_bev[:3, 3]
@@ -173,8 +178,9 @@ def frame_lanes(
     for k, line in enumerate(piece_lane.tolist()):
         xy = points[piece_offsets[k] : piece_offsets[k + 1]]
         z = clipped_heights(xy, bev[offsets[line] : offsets[line + 1]])
+        piece = resampled_lane(np.column_stack([xy, z]), LANE_POINTS)
         # BEV (x right, y forward) -> OpenLane-V2's ego frame (x forward, y left)
-        lanes.append(np.stack([xy[:, 1], -xy[:, 0], z], axis=1))
+        lanes.append(np.stack([piece[:, 1], -piece[:, 0], piece[:, 2]], axis=1))
         ids.append(str(piece_ids.setdefault((int(near[line]), int(ordinal[line])), len(piece_ids))))
         ordinal[line] += 1
         if has_end[k]:
@@ -190,6 +196,18 @@ def frame_lanes(
     links = np.zeros((len(lanes), len(lanes)))
     links[i[ok], j[ok]] = 1.0
     return AnnotatedLanes(lanes, links, ids)
+
+
+def resampled_lane(points: np.ndarray, n: int) -> np.ndarray:
+    """The polyline points (m, 3) as n points evenly spaced by arc length in the ground plane (as shapely's
+    interpolate, which OpenLane-V2's own resampling uses, measures it), heights interpolated along; its first
+    and last points kept to the bit, so a successor's first point stays its predecessor's last."""
+    step = np.hypot(*np.diff(points[:, :2], axis=0).T)
+    along = np.concatenate([[0.0], np.cumsum(step)])
+    at = np.linspace(0.0, along[-1], n)
+    out = np.column_stack([np.interp(at, along, points[:, k]) for k in range(points.shape[1])])
+    out[0], out[-1] = points[0], points[-1]
+    return out
 
 
 def clipped_heights(xy: np.ndarray, line: np.ndarray) -> np.ndarray:

@@ -447,7 +447,8 @@ def report(
                                          help="A `cli roundtrip --out` file (repeatable)"),
     out: Path = typer.Option(..., help="Folder for report.md and its PNGs"),
     workers: int = typer.Option(
-        1, min=0, help="Worker processes of the scores by junction count (0: one per core)"),
+        1, min=0, help="Worker processes of the scores by junction count and report.html's drawings "
+        "(0: one per core)"),
     reference: Literal["paper"] = typer.Option(
         None, show_default="none", help="paper: place the paper's published tables beside the measured ones"),
     bootstrap: Bootstrap = 1000,

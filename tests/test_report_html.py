@@ -108,6 +108,35 @@ def test_keep_frames_says_why(made):
     assert keep_frames(blocks, 9) == kept  # seeded
 
 
+def line(x0: float, y0: float, x1: float, y1: float) -> LaneGraph:
+    return LaneGraph(np.array([x0, x1], np.float32), np.array([y0, y1], np.float32), np.array([0], np.int32),
+                     np.array([1], np.int32))  # fmt: skip
+
+
+def test_edge_shares_follow_the_metrics_matching():
+    """A 10 m ground-truth edge against a prediction 0.2 m beside it (every point within the 0.45 m radius:
+    all paired), 3 m beside it (none) and along its first half (the GT edge half paired)."""
+    from benchmark.metric.params import MetricParams
+    from benchmark.report.browser import edge_shares
+    from benchmark.report.figures import matched_vertices
+
+    params = MetricParams()
+    gt = line(0, 0, 0, 10)
+    for pred, pred_share, gt_share in ((line(0.2, 0, 0.2, 10), 1.0, 1.0), (line(3, 0, 3, 10), 0.0, 0.0),
+                                       (line(0, 0, 0, 5), 1.0, 0.5)):  # fmt: skip
+        _, p_ok, _, g_ok = matched_vertices(pred, gt, params)
+        assert edge_shares(pred, p_ok, params.step) == pytest.approx([pred_share])
+        assert edge_shares(gt, g_ok, params.step) == pytest.approx([gt_share], abs=0.02)
+
+
+def test_drawings_in_workers_are_the_same(made):
+    from benchmark.report.browser import browser_blocks, frame_drawings
+
+    blocks, _ = browser_blocks(made["report"].blocks, thumbnails=False)
+    frames = [(0, f) for f in made["val"]]
+    assert frame_drawings(blocks, frames, workers=2) == frame_drawings(blocks, frames, workers=1)
+
+
 def test_thumbnails_are_each_frames_front_camera(made):
     import base64
 

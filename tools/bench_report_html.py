@@ -67,9 +67,10 @@ def synthetic_block(folder: Path, frames: int) -> tuple[browser.BrowserBlock, fl
     distinct = [browser.BrowserRun("shifted", {}, shifted), browser.BrowserRun("half", {}, half)]
     one = browser.BrowserBlock("av2", "val", "av2 · val split", params, gt, distinct)
     start = time.perf_counter()
-    drawings = {f: browser.frame_drawing(one, f) for f in val}
+    drawings = dict(zip(val, browser.frame_drawings([one], [(0, f) for f in val])))
     per_frame = (time.perf_counter() - start) / len(val)
-    browser.frame_drawing = lambda blk, f: drawings[source[f]]  # the repeated frames reuse their drawing
+    # the repeated frames reuse their drawing
+    browser.frame_drawings = lambda blocks, frames, workers=1: [drawings[source[f]] for _, f in frames]
     return block, per_frame
 
 

@@ -14,6 +14,8 @@ from __future__ import annotations
 import base64
 import json
 import math
+import os
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from itertools import combinations
 from pathlib import Path
@@ -29,6 +31,7 @@ from benchmark.report.runs import shown as shown_path
 from pipeline.geometry import Range
 from pipeline.lane_graph import LaneGraph
 from pipeline.pieces import graph_to_pieces
+from pipeline.progress import track
 
 QUANTUM = 0.05  # metres: finer than the metric's 0.15 m step, so the drawing shows what it scored
 DEFAULT_FRAMES = 3000  # `cli report --browser-frames`
@@ -311,46 +314,87 @@ def graph_numbers(graph: LaneGraph) -> tuple[list[np.ndarray], np.ndarray]:
     return numbers, edges
 
 
-def frame_drawing(block: BrowserBlock, frame: str) -> str:
+@dataclass(frozen=True)
+class FrameTask:
+    """What one frame's drawing needs, picklable for a worker: the ground truth, each run's prediction
+    (None: the run has none for this frame, drawn empty) and the metric's parameters."""
+
+    gt: LaneGraph
+    predictions: tuple[LaneGraph | None, ...]
+    params: MetricParams
+
+
+def frame_task(block: BrowserBlock, frame: str) -> FrameTask:
+    predictions = tuple((run.predictions or {}).get(frame) for run in block.runs)
+    return FrameTask(block.gt[frame], predictions, block.params)
+
+
+def frame_drawing(task: FrameTask) -> str:
     """One frame packed for browser.js: the ground truth's drawing, then for each run of the block its
-    prediction's drawing (empty where it has none), its edges' shares paired (0-100) and the ground
-    truth's edges' shares that it paired."""
-    gt = block.gt[frame]
+    prediction's drawing (empty where it has none), its edges' shares paired (0-100), the ground truth's
+    edges' shares that it paired, and whether it predicted the frame (1) or not (0)."""
+    gt, step = task.gt, task.params.step
     numbers, _ = graph_numbers(gt)
-    for run in block.runs:
-        pred = (run.predictions or {}).get(frame, LaneGraph.empty())
+    for prediction in task.predictions:
+        pred = LaneGraph.empty() if prediction is None else prediction
         drawn, _ = graph_numbers(pred)
-        _, p_ok, _, g_ok = matched_vertices(pred, gt, block.params)
-        shares = [edge_shares(pred, p_ok, block.params.step), edge_shares(gt, g_ok, block.params.step)]
+        _, p_ok, _, g_ok = matched_vertices(pred, gt, task.params)
+        shares = [edge_shares(pred, p_ok, step), edge_shares(gt, g_ok, step)]
         numbers += drawn + [np.rint(100 * s).astype(np.uint64) for s in shares]
-        numbers.append(
-            np.array([0 if run.predictions is None or frame not in run.predictions else 1], np.uint64)
-        )
+        numbers.append(np.array([prediction is not None], np.uint64))
     return base64.b64encode(varints(np.concatenate(numbers))).decode()
+
+
+def _drawing_chunk(tasks: list[FrameTask]) -> list[str]:
+    return [frame_drawing(task) for task in tasks]
+
+
+def frame_drawings(blocks: list[BrowserBlock], frames: list[tuple[int, str]], workers: int = 1) -> list[str]:
+    """The drawings of the kept frames ((block index, frame id)), in order, in `workers` processes (0: one
+    per core): the metric's matching of each run on each frame is the report's longest work here."""
+    tasks = [frame_task(blocks[b], frame) for b, frame in frames]
+    workers = workers if workers > 0 else os.cpu_count() or 1
+    out: list[str] = []
+    with track("report.html frames", len(tasks)) as advance:
+        if workers <= 1 or len(tasks) < 2 * workers:
+            for task in tasks:
+                out.append(frame_drawing(task))
+                advance()
+            return out
+        size = max(1, min(64, len(tasks) // (4 * workers)))
+        chunks = [tasks[i : i + size] for i in range(0, len(tasks), size)]
+        with ProcessPoolExecutor(workers) as pool:
+            for chunk, part in zip(chunks, pool.map(_drawing_chunk, chunks)):
+                out += part
+                advance(len(chunk))
+    return out
 
 
 def rounded(value: float | None) -> float | None:
     return None if value is None else round(value, 4)
 
 
-def browser_data(blocks: list[BrowserBlock], limit: int, notes: list[str], seed: int = SEED) -> dict:
+def browser_data(
+    blocks: list[BrowserBlock], limit: int, notes: list[str], seed: int = SEED, workers: int = 1
+) -> dict:
     """Everything browser.js reads, JSON-able: the blocks and runs, the kept frames' columns and drawings,
     the reasons, and what was left out."""
     from benchmark.report.style import STYLE
 
     kept = keep_frames(blocks, limit, seed)
+    drawings = frame_drawings(blocks, kept.frames, workers)
     every = [(b, run) for b, block in enumerate(blocks) for run in block.runs]  # the runs' columns, in order
     names = ("id", "block", "why", "junctions", "length", "drawing", "thumbnail")
     columns: dict[str, list] = {name: [] for name in names}
     scores = [{"p": [], "r": [], "f1": [], "jf1": []} for _ in every]
-    for b, frame in kept.frames:
+    for (b, frame), drawing in zip(kept.frames, drawings):
         block, gt = blocks[b], blocks[b].gt[frame]
         edges = unique_edges(gt, True)
         length = np.hypot(gt.x[edges[:, 1]] - gt.x[edges[:, 0]], gt.y[edges[:, 1]] - gt.y[edges[:, 0]]).sum()
         # the directed junctions of the metric's densified ground truth, as each of its count rows has them
         row = next(run.counts[frame] for run in block.runs if frame in run.counts)
         values = (frame, b, kept.why[(b, frame)], int(row[DIRECTED["n_junctions"]]), round(float(length), 1),
-                  frame_drawing(block, frame), block.thumbnails.get(frame, ""))  # fmt: skip
+                  drawing, block.thumbnails.get(frame, ""))  # fmt: skip
         for name, value in zip(names, values):
             columns[name].append(value)
         for column, (run_block, run) in zip(scores, every):

@@ -88,12 +88,17 @@ do not.</p></noscript></div>
 
 
 def write_html(
-    markdown: Path, blocks: list[Block], frames: int = DEFAULT_FRAMES, thumbnails: bool = False
+    markdown: Path,
+    blocks: list[Block],
+    frames: int = DEFAULT_FRAMES,
+    thumbnails: bool = False,
+    workers: int = 1,
 ) -> Path:
     """report.html beside report.md (`markdown`): its content, then the frame browser of the blocks' frames
-    (at most `frames` of them; `thumbnails`: each frame's front camera image, small)."""
+    (at most `frames` of them; `thumbnails`: each frame's front camera image, small), its drawings made in
+    `workers` processes (0: one per core)."""
     shown, notes = browser_blocks(blocks, thumbnails)
-    data = browser_data(shown, frames, notes)
+    data = browser_data(shown, frames, notes, workers=workers)
     if not shown:
         data["empty"] = (
             "No run here has per-frame results with its ground truth found, so there are no frames to browse."

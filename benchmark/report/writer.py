@@ -86,5 +86,5 @@ def write_report(
     text = "\n".join(md).rstrip() + "\n"
     path = out / "report.md"
     write_atomic(path, lambda tmp: tmp.write_text(text))
-    page = write_html(path, blocks, browser_frames, thumbnails)
+    page = write_html(path, blocks, browser_frames, thumbnails, workers)
     return Report(path, page, blocks, doc.pictures, doc.grids, doc.shown_references)

@@ -81,6 +81,16 @@ def test_page_is_one_file_with_every_table(made):
     assert "older: not in the frame browser: " in page and "metrics.json lacks fps" in page
 
 
+def test_a_report_without_per_frame_results_says_so(made):
+    """Runs without frame_counts.parquet or with an older metrics.json: the page says there is nothing to
+    browse, and why for each run, rather than an empty browser."""
+    report = write_report([made["root"] / "old"], made["root"] / "report_old", draws=0)
+    page = report.html.read_text()
+    assert "there are no frames to browse" in page
+    assert "old: not in the frame browser: no frame_counts.parquet" in page
+    assert "older: not in the frame browser: " in page
+
+
 def test_frame_scores_pool_as_the_metric():
     """A frame's F1 from its count row: precision sum / n_pred etc.; no junction -> none, not 0."""
     row = np.zeros(16)

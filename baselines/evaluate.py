@@ -155,7 +155,7 @@ def scored_frames(graphs: dict[str, LaneGraph], ground_truth: dict[str, LaneGrap
     data with its annotated lanes and its ground plane, which the openlanev2 metric scores the predicted
     graph's lanes (with heights from that plane) against, as `cli score` does."""
     frame_ids = sorted(graphs)
-    if data.kind != "openlanev2":
+    if not data.has_annotated_lanes:
         return [Frame(graphs[frame_id], ground_truth[frame_id]) for frame_id in frame_ids]
     lanes = io.read_annotated_lanes(data.path, frame_ids)
     return [Frame(graphs[f], ground_truth[f], gt_lanes=lanes[f], ground=grounds[f]) for f in frame_ids]
@@ -205,7 +205,7 @@ def openlanev2_submission(run_dir: Path, graphs: dict[str, LaneGraph], grounds: 
     metrics.json says of it. On other data None, and an earlier evaluation's submission is removed: the
     folder holds one evaluation, which that file would not match."""
     path = run_dir / SUBMISSION
-    if data.kind != "openlanev2":
+    if not data.has_annotated_lanes:
         path.unlink(missing_ok=True)
         return None
     keys = io.read_openlanev2_keys(data.path)

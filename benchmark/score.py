@@ -157,7 +157,7 @@ def write_run(run_dir: Path, graphs: dict[str, LaneGraph], frame_counts: np.ndar
 def frames_of(pred: Predictions, gt: dict[str, LaneGraph], gt_path: Path) -> list[Frame]:
     """Each predicted frame beside its ground truth as the metrics take it; with OpenLane-V2 ground truth
     also its annotated lanes and its ground plane (frames.ground_z, ground_slope)."""
-    if PreparedData.open(gt_path).kind != "openlanev2":
+    if not PreparedData.open(gt_path).has_annotated_lanes:
         return [prediction.frame(gt[prediction.frame_id]) for prediction in pred]
     frame_ids = [prediction.frame_id for prediction in pred]
     lanes = io.read_annotated_lanes(gt_path, frame_ids)

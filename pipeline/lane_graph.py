@@ -179,21 +179,40 @@ BEV_FROM_OPENLANEV2_EGO = np.linalg.inv(AV2_EGO_FROM_BEV)
 LINK_THRESHOLD = 0.5  # a predicted link counts above this probability, as OpenLane-V2 reads topology_lclc
 
 
-def graph_of_annotated(lanes: AnnotatedLanes, rng: Range | None = None) -> LaneGraph:
+# OpenLane-V2 annotates 201 points per lane, a vertex every few centimetres; TOPO's densification splits each
+# edge, so a graph's point count follows its vertices and the denser side loses (docs/METRICS.md). Lanes are
+# simplified (Douglas-Peucker, end points kept) to within a centimetre, far below the metrics' 0.15 m, before
+# they become a graph, ground truth and submissions alike: vertices where the lanes bend, as a map's are.
+SIMPLIFY_M = 0.01
+
+
+def simplified(lanes: list[np.ndarray]) -> list[np.ndarray]:
+    """Each (n, 3) polyline with the points that shapely's Douglas-Peucker (in x, y) keeps at SIMPLIFY_M."""
+    import shapely
+
+    index = np.repeat(np.arange(len(lanes)), [len(lane) for lane in lanes])
+    lines = shapely.linestrings(np.concatenate(lanes), indices=index)
+    lines = shapely.simplify(lines, SIMPLIFY_M, preserve_topology=False)
+    return [np.asarray(shapely.get_coordinates(line, include_z=True)) for line in lines]
+
+
+def graph_of_annotated(lanes: AnnotatedLanes, rng: Range | None = None, simplify: bool = True) -> LaneGraph:
     """The BEV lane graph of OpenLane-V2 lanes: each lane a chain of its points, a link i -> j (an entry of
     `links` above LINK_THRESHOLD) joining i's last point to j's first, points at one place one vertex (so
-    merges and forks are junctions); clipped to `rng` as crop_lane_graph clips a map (None: unclipped)."""
-    return scored_graph_of_annotated(lanes, rng)[0]
+    merges and forks are junctions); clipped to `rng` as crop_lane_graph clips a map (None: unclipped).
+    `simplify`: each lane simplified first (SIMPLIFY_M); False: every annotated point a vertex."""
+    return scored_graph_of_annotated(lanes, rng, simplify)[0]
 
 
 def scored_graph_of_annotated(
-    lanes: AnnotatedLanes, rng: Range | None = None
+    lanes: AnnotatedLanes, rng: Range | None = None, simplify: bool = True
 ) -> tuple[LaneGraph, np.ndarray | None]:
     """(graph_of_annotated's graph, each edge's score: the highest confidence of the lanes it lies on; None
     for annotated lanes, which have no confidence)."""
     if not len(lanes):
         return LaneGraph.empty(), None if lanes.confidence is None else np.zeros(0)
     bev = [p @ BEV_FROM_OPENLANEV2_EGO[:3, :3].T for p in lanes.points]
+    bev = simplified(bev) if simplify else bev
     src, dst = np.nonzero(np.asarray(lanes.links) > LINK_THRESHOLD)
     names = [f"{i:09d}" for i in range(len(bev))]  # LaneMap sorts lanes by id: keep their order
     successors = [[] for _ in bev]

@@ -97,6 +97,12 @@ class PreparedData:
         return self.manifest.get("dataset")
 
     @property
+    def has_annotated_lanes(self) -> bool:
+        """OpenLane-V2 data: its frames keep their annotated lanes (io.read_annotated_lanes), their submission
+        keys (io.read_openlanev2_keys) and no LiDAR."""
+        return self.kind == "openlanev2"
+
+    @property
     def sensor_root(self) -> Path:
         """The raw dataset the frames' sensor files are relative to (the folder itself without manifest)."""
         return Path(self.manifest.get("root", self.path))

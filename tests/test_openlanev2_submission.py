@@ -40,15 +40,15 @@ def lanes(points: list, links=None, confidence=None, ids=None) -> AnnotatedLanes
 
 def test_each_edge_of_a_predicted_graph_scores_its_lanes_highest_confidence():
     # ego frame: x forward, y left; the BEV graph has x right (= -y), y forward (= x)
-    trunk = [[0, 0, 0], [10, 0, 0], [20, 0, 0]]
-    twin = [[10, 0, 0], [20, 0, 0]]  # lies on the trunk's second edge
+    trunk = [[0, 0, 0], [10, 1, 0], [20, 0, 0]]  # bent at its middle point, which simplifying keeps
+    twin = [[10, 1, 0], [20, 0, 0]]  # lies on the trunk's second edge
     branch = [[20, 0, 0], [30, -5, 0]]  # linked after the trunk: a fork at (20, 0)
     links = [[0, 0, 0.9], [0, 0, 0], [0, 0, 0]]
     predicted = lanes([trunk, twin, branch], links, [0.3, 0.8, 0.6])
     graph, scores = scored_graph_of_annotated(predicted, Range.parse("50x100"))
     xy = graph.xy
     by_edge = {(tuple(xy[s]), tuple(xy[d])): score for s, d, score in zip(graph.src, graph.dst, scores)}
-    assert by_edge == {((0.0, 0.0), (0.0, 10.0)): 0.3, ((0.0, 10.0), (0.0, 20.0)): 0.8,
+    assert by_edge == {((0.0, 0.0), (-1.0, 10.0)): 0.3, ((-1.0, 10.0), (0.0, 20.0)): 0.8,
                        ((0.0, 20.0), (5.0, 30.0)): 0.6}  # fmt: skip
     unscored = graph_of_annotated(predicted, Range.parse("50x100"))
     assert all(np.array_equal(getattr(graph, f), getattr(unscored, f)) for f in ("x", "y", "src", "dst"))
@@ -57,7 +57,7 @@ def test_each_edge_of_a_predicted_graph_scores_its_lanes_highest_confidence():
     short, short_scores = scored_graph_of_annotated(predicted, Range.parse("50x30"))
     xy = short.xy
     by_edge = {(tuple(xy[s]), tuple(xy[d])): score for s, d, score in zip(short.src, short.dst, short_scores)}
-    assert by_edge == {((0.0, 0.0), (0.0, 10.0)): 0.3, ((0.0, 10.0), (0.0, 15.0)): 0.8}
+    assert by_edge == {((0.0, 0.0), (-1.0, 10.0)): 0.3, ((-1.0, 10.0), (-0.5, 15.0)): 0.8}
     # annotated lanes have no confidence: no scores; no lanes: no edges
     assert scored_graph_of_annotated(lanes([trunk]))[1] is None
     empty, empty_scores = scored_graph_of_annotated(lanes([], confidence=[]))

@@ -457,8 +457,9 @@ def check(source: Source, options: Options) -> str | None:
 
 def frames_of_keys(gt: GroundTruth, path: Path) -> dict[Key, str]:
     """{submission key: frame id} of an OpenLane-V2 prepared dataset; one line for other ground truth."""
-    kind = PreparedData.open(gt.path).kind
-    if kind != "openlanev2":
+    data = PreparedData.open(gt.path)
+    if not data.has_annotated_lanes:
+        kind = data.kind
         what = f"{kind} data" if kind else "not a prepared dataset"
         raise FormatError(
             f"{path}: an OpenLane-V2 submission, scored against OpenLane-V2 frames; the ground truth "

@@ -335,7 +335,8 @@ def frame_targets(segment: Segment, frame: Frame, options: TargetOptions) -> Fra
     where it could not be read."""
     if frame.frame_id in segment.errors:
         raise segment.errors[frame.frame_id]
-    return graph_targets(graph_of_annotated(segment.files[frame.frame_id].lanes, options.bev_range), options)
+    graph = graph_of_annotated(segment.files[frame.frame_id].lanes, options.bev_range)
+    return graph_targets(graph, options)
 
 
 def annotated_table(segment: Segment, frames: list[Frame]) -> pa.Table:

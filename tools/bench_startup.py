@@ -1,8 +1,8 @@
 """Start-up of `cli score` (a benchmark, not a test): one frame scored as a whole process, with the kernels'
 ahead-of-time build (pipeline/kernels.py), under numba's JIT with its cache warm (LANEGRAPH_JIT=1), and beside
 CGNet's evaluator on the same frame when a CGNet checkout and a Python with its packages are given
-(tools/cgnet_one_frame.py). The commands run in turn, one run of each per round; a ratio is the median over
-rounds of that round's pair.
+(tools/compare/cgnet_one_frame.py). The commands run in turn, one run of each per round; a ratio is the median
+over rounds of that round's pair.
 
     python -m tools.bench_startup [--runs 9] [--cgnet CHECKOUT --cgnet-python PYTHON]
 
@@ -69,7 +69,7 @@ def main() -> None:
             commands[f"cli score --metric {metric}"] = (score, {"LANEGRAPH_JIT": "0"})
             commands[f"cli score --metric {metric}, LANEGRAPH_JIT=1"] = (score, {"LANEGRAPH_JIT": "1"})
         if args.cgnet and args.cgnet_python:
-            script = str(REPO / "tools" / "cgnet_one_frame.py")
+            script = str(REPO / "tools" / "compare" / "cgnet_one_frame.py")
             for mode in ("topo", "full"):
                 run = [str(args.cgnet_python), script, str(args.cgnet), str(frame), mode]
                 commands[f"CGNet's evaluator, {mode}"] = (run, {})

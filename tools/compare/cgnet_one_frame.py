@@ -1,8 +1,8 @@
 """CGNet's evaluator on one frame, as a whole process: the yardstick of tools/bench_startup.py, and on many
-frames the reference of tools/compare_cgnet.py. It runs under the Python of a CGNet environment (numpy,
+frames the reference of tools/compare/cgnet.py. It runs under the Python of a CGNet environment (numpy,
 networkx, scipy, shapely, cv2, rtree, utm), never ours, and imports nothing of this project.
 
-    python tools/cgnet_one_frame.py CGNET_CHECKOUT FRAME.json topo|full
+    python tools/compare/cgnet_one_frame.py CGNET_CHECKOUT FRAME.json topo|full
 
 FRAME.json: {"gt"|"pred": {"pos": [[x, y], ...] in metres, "edges": [[u, v], ...]}}, or a list of such frames.
 Each graph is built as CGNet's dataset class builds its own, `nx.DiGraph(adjacency)` with float32 positions,

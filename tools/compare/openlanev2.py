@@ -2,7 +2,7 @@
 against OpenLane-V2's own evaluation code, run unchanged under its own Python; prints DET_l and TOP_ll of
 each case by both and their differences (a check run by hand: CI has no OpenLane-V2).
 
-    python -m tools.compare_openlanev2 --openlanev2 CHECKOUT --openlanev2-python PYTHON [--data DIR ...]
+    python -m tools.compare.openlanev2 --openlanev2 CHECKOUT --openlanev2-python PYTHON [--data DIR ...]
 
 CHECKOUT is a checkout of OpenDriveLab/OpenLane-V2 (v2.1.0 or later), PYTHON a Python with numpy 1.23, scipy,
 similaritymeasures and tqdm (its evaluation's packages; cv2, ortools, iso3166 and shapely, which DET_l and

@@ -2,7 +2,7 @@
 frames under seven kinds of prediction; prints the largest difference per kind (a check run by hand: CI has no
 CGNet). Each frame's nine numbers (GEO / TOPO / JTOPO precision, recall, F1) are compared.
 
-    python -m tools.compare_cgnet --cgnet CHECKOUT --cgnet-python PYTHON [--data DIR ...] [--seed 0]
+    python -m tools.compare.cgnet --cgnet CHECKOUT --cgnet-python PYTHON [--data DIR ...] [--seed 0]
 
 CHECKOUT is a checkout of XiaoMi/CGNet, PYTHON a Python with its evaluator's packages (numpy 1.23, networkx,
 scipy, shapely, opencv, Rtree 1.0.1, utm). Without --data it prepares, in a temporary folder, the real AV2

@@ -26,6 +26,8 @@ import io as bytes_io
 import math
 import numbers
 import pickle
+import pickletools
+from collections import Counter
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -235,28 +237,64 @@ class SubmissionUnpickler(pickle.Unpickler):
         raise Forbidden("holds a persistent id")
 
 
-def realised(value):
-    """The loaded value with each builder replaced by what it built (arrays, dtypes), containers rebuilt."""
-    if isinstance(value, ArrayBuilder):
-        return value.array
-    if isinstance(value, DtypeBuilder):
-        return value.dtype
-    if isinstance(value, dict):
-        return {realised(k): realised(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [realised(v) for v in value]
-    if isinstance(value, tuple):
-        return tuple(realised(v) for v in value)
-    if isinstance(value, Guarded):
-        raise Forbidden(f"holds {value.what} itself")
-    return value
+MEMO_OPCODES = ("PUT", "BINPUT", "LONG_BINPUT")
+
+
+def check_memo_indices(data: bytes) -> None:
+    """Refuses a memo index past the opcodes before it, which no pickler writes: pickle's C reader sizes its
+    memo to the largest index, so a 9-byte file could make it fill gigabytes. A malformed stream is left to
+    pickle's reader, whose words say what is wrong."""
+    try:
+        for count, (opcode, index, _) in enumerate(pickletools.genops(data)):
+            if opcode.name in MEMO_OPCODES and index > count:
+                raise Forbidden(f"stores in memo slot {index} after {count} opcodes")
+    except ValueError:
+        return
+
+
+class Realised:
+    """The loaded value with each builder replaced by what it built (arrays, dtypes), containers rebuilt.
+    Each container's items and each array's bytes count every time they are reached: a memo reference
+    repeats any part in a few bytes, so a count past the file's size is a structure blown up by references
+    (a tree of [x, x] takes 2^n steps), refused before it is walked; a container within itself is refused."""
+
+    def __init__(self, allowance: int) -> None:
+        self.left = allowance
+        self.open: set[int] = set()
+
+    def spend(self, count: int) -> None:
+        self.left -= count
+        if self.left < 0:
+            raise Forbidden("repeats its parts by reference past the file's size")
+
+    def __call__(self, value):
+        if isinstance(value, ArrayBuilder):
+            self.spend(value.array.nbytes)
+            return value.array
+        if isinstance(value, DtypeBuilder):
+            return value.dtype
+        if isinstance(value, Guarded):
+            raise Forbidden(f"holds {value.what} itself")
+        if not isinstance(value, dict | list | tuple):
+            return value
+        if id(value) in self.open:
+            raise Forbidden(f"holds a {type(value).__name__} within itself")
+        self.spend(1 + len(value))
+        self.open.add(id(value))
+        if isinstance(value, dict):
+            built = {self(k): self(v) for k, v in value.items()}
+        else:
+            built = type(value)(self(v) for v in value)
+        self.open.discard(id(value))
+        return built
 
 
 def load_pickle(path: Path) -> object:
     """The pickle read by SubmissionUnpickler; one line naming the file and what it asks for otherwise."""
     data = Path(path).read_bytes()
     try:
-        return realised(SubmissionUnpickler(bytes_io.BytesIO(data)).load())
+        check_memo_indices(data)
+        return Realised(2 * len(data))(SubmissionUnpickler(bytes_io.BytesIO(data)).load())
     except Forbidden as refused:
         raise PickleRefusal(
             f"{path}: a pickle that {refused}, refused: a submission holds only dicts, lists, tuples, "
@@ -352,8 +390,9 @@ def lanes_of(predictions, path: Path, key: Key) -> AnnotatedLanes:
         if points[-1].ndim != 2 or points[-1].shape[1] != 3 or len(points[-1]) < 2:
             raise FormatError(f"{name}: points of shape {points[-1].shape}, not (n, 3) with n >= 2")
         confidence.append(finite_number(lane["confidence"], f"{name}: confidence"))
-    if len(set(ids)) != len(ids):
-        raise FormatError(f"{where}: lane id {next(i for i in ids if ids.count(i) > 1)!r} appears twice")
+    repeated = [name for name, count in Counter(ids).items() if count > 1]
+    if repeated:
+        raise FormatError(f"{where}: lane id {repeated[0]!r} appears twice")
     if "topology_lclc" not in predictions:
         raise FormatError(f'{where}: no "topology_lclc" in its predictions')
     links = finite_array(predictions["topology_lclc"], f"{where}: topology_lclc")
@@ -366,12 +405,16 @@ def lanes_of(predictions, path: Path, key: Key) -> AnnotatedLanes:
 
 
 def finite_array(value, what: str) -> np.ndarray:
-    """float64 of an array or nested lists of numbers, every one finite."""
+    """float64 of an array or nested lists of real numbers (or booleans), every one finite: complex numbers,
+    whose imaginary part a cast drops, and strings, which it parses, are refused."""
     try:
-        array = np.array(value, np.float64)
+        array = np.asarray(value)
     except (TypeError, ValueError):
         raise FormatError(f"{what}: not an array of numbers") from None
-    if isinstance(value, str | bytes) or not np.isfinite(array).all():
+    if array.dtype.kind not in "biuf":
+        raise FormatError(f"{what}: not an array of real numbers (numpy reads it as {array.dtype})")
+    array = array.astype(np.float64)
+    if not np.isfinite(array).all():
         raise FormatError(f"{what}: not an array of finite numbers")
     return array
 

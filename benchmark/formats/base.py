@@ -72,6 +72,9 @@ class Source:
                     self._parsed = json.load(file)
                 except (json.JSONDecodeError, UnicodeDecodeError) as error:
                     self._parsed = error
+                except RecursionError:  # Python's reader stops some hundreds of levels deep: a parse error
+                    self._parsed = json.JSONDecodeError("nested too deeply", "", 0)
+                    self._parsed.args = ("arrays or objects nested too deeply to read",)
             self._tried = True
         parsed = self._parsed
         if not keep:

@@ -156,6 +156,8 @@ def read_json(path: Path) -> dict:
         value = json.loads(Path(path).read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise DataError(path, "JSON", f"cannot be read: {error}") from error
+    except RecursionError:  # Python's reader stops some hundreds of levels deep
+        raise DataError(path, "JSON", "cannot be read: arrays or objects nested too deeply") from None
     if not isinstance(value, dict):
         raise DataError(path, "JSON", f"is a {type(value).__name__}, not an object")
     return value
@@ -173,9 +175,12 @@ def item(mapping, key: str, source: Path, record: str):
 def numbers(value, shape: tuple[int | None, ...], source: Path, record: str) -> np.ndarray:
     """value as float64 of `shape` (None: any length), all finite, or one DataError naming the record."""
     try:
-        array = np.asarray(value, dtype=np.float64)
+        array = np.asarray(value)
     except (TypeError, ValueError) as error:
         raise DataError(source, record, "is not an array of numbers") from error
+    if array.dtype.kind not in "biuf":  # a float cast would parse strings
+        raise DataError(source, record, "is not an array of numbers")
+    array = array.astype(np.float64)
     if array.size == 0 and len(shape) == 2 and shape[0] == shape[1] is None:  # [] for a frame without lanes
         array = array.reshape(0, 0)
     if array.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, array.shape)):

@@ -97,6 +97,8 @@ class Inference:
     timed_frames: int
     net_seconds: float
     total_seconds: float
+    # by frame id, each graph edge's score from the model's instance scores (predict's `edge_scores`)
+    edge_scores: dict[str, np.ndarray] | None = None
 
     def rates(self) -> dict:
         timed = self.timed_frames
@@ -108,15 +110,20 @@ class Inference:
 
 
 def predict(built: Built, loader: DataLoader, device: torch.device, autocast_dtype: torch.dtype | None,
-            warmup_frames: int, description: str, count_flops: bool = True) -> Inference:  # fmt: skip
+            warmup_frames: int, description: str, count_flops: bool = True,
+            edge_scores: bool = False) -> Inference:  # fmt: skip
     """Run the model and its post-processing on every frame of `loader` (batches of one), timing the
-    frames after the first `warmup_frames`; the GFLOPs are counted on the first frame (`count_flops`)."""
+    frames after the first `warmup_frames`; the GFLOPs are counted on the first frame (`count_flops`).
+    `edge_scores` (for a submission) keeps each edge's score where the model's post-processing gives them
+    (Built.scored_graphs), outside the timing, so that the graphs and the frame rates stay the plain ones."""
 
     def sync() -> None:
         if device.type == "cuda":
             torch.cuda.synchronize(device)
 
     graphs = {}
+    scored_graphs = built.scored_graphs if edge_scores else None
+    scores = {} if scored_graphs is not None else None
     net_seconds = total_seconds = 0.0
     gflops = 0.0
     frames = len(loader.dataset)
@@ -137,7 +144,12 @@ def predict(built: Built, loader: DataLoader, device: torch.device, autocast_dty
             net_seconds += network_done - start
             total_seconds += done - start
         graphs[batch.frame_ids[0]] = graph
-    return Inference(graphs, gflops, frames - warmup_frames, net_seconds, total_seconds)
+        if scored_graphs is not None:
+            scored_graph, scores[batch.frame_ids[0]] = scored_graphs(outputs)[0]
+            same = np.array_equal(scored_graph.src, graph.src) and np.array_equal(scored_graph.dst, graph.dst)
+            if not same:  # the scores must be those of this very graph's edges
+                raise RuntimeError(f"frame {batch.frame_ids[0]}: the scored post-processing gave other edges")
+    return Inference(graphs, gflops, frames - warmup_frames, net_seconds, total_seconds, scores)
 
 
 Ground = tuple[float, float, float]  # a frame's ground plane: ground_z, a, b (z = ground_z + a x + b y)
@@ -192,16 +204,21 @@ def floor_scores(
     return floor
 
 
-# What a submission's confidences are: no model's post-processing (Built.to_graphs) gives its lanes' scores.
-UNSCORED = ("every lane's confidence is 1.0 (the model's post-processing keeps no scores), which makes "
-            "OpenLane-V2's DET_l one point of its precision-recall curve")  # fmt: skip
+# What a submission's confidences are: from the model's instance scores where its post-processing keeps
+# them (Built.scored_graphs: LaneGAP's paths, MapTR's and STSU's pieces), else 1.0 (HDMapNet's rasters).
+SCORED = ("each lane's confidence is the mean of its edges' scores, each edge's the highest score of the "
+          "model's {instances} that give it")  # fmt: skip
+UNSCORED = ("every lane's confidence is 1.0 (the model's post-processing keeps no instance score), which "
+            "makes OpenLane-V2's DET_l one point of its precision-recall curve")  # fmt: skip
 
 
 def openlanev2_submission(run_dir: Path, graphs: dict[str, LaneGraph], grounds: dict[str, Ground],
-                          data: PreparedData, method: str) -> dict | None:  # fmt: skip
+                          data: PreparedData, method: str, edge_scores: dict[str, np.ndarray] | None = None,
+                          instances: str = "") -> dict | None:  # fmt: skip
     """On OpenLane-V2 data RUN_DIR/submission.pkl (written atomically): each predicted frame's graph as
     OpenLane-V2's lanes under its submission key (pipeline.io.read_openlanev2_keys), their heights from the
-    frame's ground plane, links from the graph, confidences 1.0 (UNSCORED), no traffic elements; returns what
+    frame's ground plane, links from the graph, confidences from `edge_scores` (by frame id, one per edge:
+    SCORED, naming the model's `instances`) or else 1.0 (UNSCORED), no traffic elements; returns what
     metrics.json says of it. On other data None, and an earlier evaluation's submission is removed: the
     folder holds one evaluation, which that file would not match."""
     path = run_dir / SUBMISSION
@@ -213,11 +230,14 @@ def openlanev2_submission(run_dir: Path, graphs: dict[str, LaneGraph], grounds: 
     if unknown:
         raise ValueError(f"{data.path}: frame {unknown[0]} has no OpenLane-V2 key (split, segment, timestamp)"
                          f"{f' (and {len(unknown) - 1} more)' if len(unknown) > 1 else ''}")  # fmt: skip
-    lanes = {keys[frame_id]: annotated_of_graph(graph, grounds[frame_id], None)
+    lanes = {keys[frame_id]: annotated_of_graph(graph, grounds[frame_id],
+                                                None if edge_scores is None else edge_scores[frame_id])
              for frame_id, graph in graphs.items()}  # fmt: skip
     write_submission(path, method, lanes)
+    confidence = UNSCORED if edge_scores is None else SCORED.format(instances=instances)
     return {"path": str(path), "method": method, "frames": len(lanes),
-            "lanes": sum(len(frame.points) for frame in lanes.values()), "confidence": UNSCORED}  # fmt: skip
+            "lanes": sum(len(frame.points) for frame in lanes.values()),
+            "confidence": confidence}  # fmt: skip
 
 
 def check_options(run_dir: Path, device: str | None) -> None:
@@ -264,7 +284,8 @@ def evaluate(
     loader = DataLoader(dataset, batch_size=1, num_workers=workers, collate_fn=collate)
     autocast_dtype, _ = amp_settings(device_, config.train.amp)
     warmup_frames = min(warmup_frames, len(dataset) - 1)  # time at least one frame
-    inference = predict(built, loader, device_, autocast_dtype, warmup_frames, f"predict {split}")
+    inference = predict(built, loader, device_, autocast_dtype, warmup_frames, f"predict {split}",
+                        edge_scores=data.has_annotated_lanes)  # fmt: skip
 
     # `cli score` scores every frame of the ground truth; here only the frames of this split.
     ground_truth = graphs_from_table(read_graph_table(data.path), data.path)
@@ -296,7 +317,8 @@ def evaluate(
         metrics["floor"] = floor_scores(
             metrics, inference.graphs, ground_truth, dataset, config, metric_params, data
         )
-    submission = openlanev2_submission(run_dir, inference.graphs, grounds, data, f"lanegraph {config.model}")
+    submission = openlanev2_submission(run_dir, inference.graphs, grounds, data, f"lanegraph {config.model}",
+                                       inference.edge_scores, f"{built.modeling}s")  # fmt: skip
     if submission is not None:
         metrics["submission"] = submission
     metrics["config"] = config.to_dict()

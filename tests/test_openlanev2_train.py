@@ -165,12 +165,16 @@ def test_synth_prepare_train_eval_score_report_on_openlanev2(synth_root, tmp_pat
     assert evaluated.exit_code == 0, evaluated.output
     submission = run / "submission.pkl"
     assert f"{submission}: 2 frames in OpenLane-V2's submission format" in evaluated.output
-    assert "DET_l one point of its precision-recall curve" in evaluated.output
+    assert "one point of its precision-recall curve" not in evaluated.output  # LaneGAP keeps its scores
     assert str(submission) in evaluated.output.splitlines()[-1]  # the `wrote` line
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["submission"]["path"] == str(submission) and metrics["submission"]["frames"] == 2
     assert metrics["submission"]["lanes"] > 0
-    check_submission(submission, data, metrics["submission"]["lanes"])
+    assert metrics["submission"]["confidence"] == (
+        "each lane's confidence is the mean of its edges' scores, each edge's the highest score of the "
+        "model's paths that give it"
+    )
+    check_submission(submission, data, metrics["submission"]["lanes"], path_confidences(run, data))
 
     score = cli("score", "--pred", submission, "--gt", data, "--metric", "lanegap,openlanev2", "--out",
                 scored, "--bootstrap", 0, "--json")  # fmt: skip
@@ -189,10 +193,45 @@ def test_synth_prepare_train_eval_score_report_on_openlanev2(synth_root, tmp_pat
     assert "OpenLane-V2 submission `lanegraph lanegap` (external)" in section
 
 
-def check_submission(path: Path, data: Path, lanes: int) -> None:
+def path_confidences(run: Path, data: Path) -> dict[str, np.ndarray]:
+    """Each val frame's lane confidences (by frame id) as the run's LaneGAP scores them: its paths above the
+    threshold with their scores, snapped as its post-processing snaps them, each graph edge the highest
+    score of the paths that give it (path2graph_scored), each lane the mean over its edges (lanes_of); the
+    graph is the very one of the run's plain post-processing. Not all 1.0: a short training's scores."""
+    import torch
+
+    from baselines.data import collate
+    from baselines.evaluate import load_model
+    from baselines.layers.raster_head import lane_probability, snap_polylines
+    from baselines.models.lanegap import select_paths
+    from benchmark.graphs.path2graph import path2graph_scored
+    from benchmark.metric.openlanev2 import lanes_of
+
+    built, config, _ = load_model(run, torch.device("cpu"))
+    dataset = PreparedDataset(PreparedData.open(data), "val", config, built.needs)
+    confidences, all_scores = {}, []
+    for index in range(len(dataset)):
+        batch = collate([dataset[index]])
+        with torch.no_grad():
+            outputs = built.model(batch.sensors)
+        [(scores, points)] = select_paths(outputs, config.decoder.score_threshold)
+        paths = [config.encoder.polyline_to_metres(p.numpy()) for p in points]
+        probability = lane_probability(outputs)[0]
+        paths = snap_polylines(paths, probability, config.encoder, config.decoder.snap_radius)
+        graph, edge_scores = path2graph_scored(paths, scores.numpy())
+        plain = built.to_graphs(outputs)[0]
+        assert np.array_equal(graph.src, plain.src) and np.array_equal(graph.dst, plain.dst)
+        confidences[batch.frame_ids[0]] = lanes_of(graph, 11, edge_scores).confidence
+        all_scores.append(scores.numpy())
+    all_scores = np.concatenate(all_scores)
+    assert len(all_scores) and np.all(all_scores < 1.0)  # the paths' own scores, each below 1
+    return confidences
+
+
+def check_submission(path: Path, data: Path, lanes: int, confidences: dict[str, np.ndarray]) -> None:
     """The pickle as OpenLane-V2 reads it: the val frames' keys, each lane's 11 points on its frame's ground
-    plane (OpenLane-V2's ego frame: x forward, y left), confidences 1.0, topology_lclc (k, k) of 0/1, no
-    traffic element and a (k, 0) topology_lcte."""
+    plane (OpenLane-V2's ego frame: x forward, y left), confidences as `confidences` has them by frame id,
+    topology_lclc (k, k) of 0/1, no traffic element and a (k, 0) topology_lcte."""
     from benchmark.formats.openlanev2_submission import load_pickle
 
     payload = load_pickle(path)
@@ -201,14 +240,19 @@ def check_submission(path: Path, data: Path, lanes: int) -> None:
     frames = io.read_table(data, "frames", columns=columns).to_pylist()
     keys = io.read_openlanev2_keys(data)
     val = {keys[f["frame_id"]]: f for f in frames if f["split"] == "val"}
+    frame_of = {keys[f["frame_id"]]: f["frame_id"] for f in frames}
     assert set(payload["results"]) == set(val) and len(val) == 2
     assert sum(len(r["predictions"]["lane_centerline"]) for r in payload["results"].values()) == lanes
     for key, result in payload["results"].items():
         predictions, ground = result["predictions"], val[key]
         count = len(predictions["lane_centerline"])
+        expected = confidences[frame_of[key]]
+        written = np.array([lane["confidence"] for lane in predictions["lane_centerline"]])
+        assert len(written) == len(expected) and np.allclose(written, expected, rtol=0, atol=1e-12)
+        assert np.all(written < 1.0)
         for lane in predictions["lane_centerline"]:
             points = lane["points"]
-            assert points.shape == (11, 3) and lane["confidence"] == 1.0
+            assert points.shape == (11, 3)
             x_bev, y_bev = -points[:, 1], points[:, 0]
             a, b = ground["ground_slope"]
             assert np.allclose(points[:, 2], ground["ground_z"] + a * x_bev + b * y_bev, atol=1e-5)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Protocol, runtime_checkable
 
 from torch import nn
 
@@ -21,6 +21,24 @@ from baselines.config import (
     divisible,
 )
 
+if TYPE_CHECKING:
+    import numpy as np
+
+    from pipeline.lane_graph import LaneGraph
+
+
+@runtime_checkable
+class ScoredPostProcess(Protocol):
+    """A post-processing that also gives each graph edge a score from the model's instance scores (LaneGAP's
+    paths, MapTR's and STSU's pieces); HDMapNet's rasters have none."""
+
+    def __call__(self, outputs: dict) -> list[LaneGraph]: ...
+
+    def scored(self, outputs: dict) -> list[tuple[LaneGraph, np.ndarray]]:
+        """outputs -> per frame (the very graph `__call__` gives, one score per edge in its src / dst
+        order)."""
+        ...
+
 
 @dataclass
 class Built:
@@ -29,6 +47,12 @@ class Built:
     to_graphs: Callable  # outputs -> one LaneGraph (metres, BEV frame) per frame of the batch
     needs: frozenset[str]  # targets it trains on: "paths", "pieces" (+ links), "raster" (mask + direction)
     modeling: str  # the paper's family: "pixel", "piece" or "path"
+
+    @property
+    def scored_graphs(self) -> Callable | None:
+        """outputs -> per frame (graph, its edges' scores) where the post-processing keeps the model's
+        instance scores (ScoredPostProcess), else None."""
+        return self.to_graphs.scored if isinstance(self.to_graphs, ScoredPostProcess) else None
 
     def to(self, device) -> Built:
         """The model and its loss on `device` together: a loss holds buffers too (piece extents, STSU's

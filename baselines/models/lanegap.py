@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Annotated
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -34,7 +35,7 @@ from baselines.layers.raster_head import (
 )
 from baselines.layers.targets import Targets
 from baselines.models.base import Built, QueryHeadConfig, preset_head
-from benchmark.graphs.path2graph import path2graph
+from benchmark.graphs.path2graph import path2graph, path2graph_scored
 from pipeline.lane_graph import LaneGraph
 
 
@@ -189,7 +190,7 @@ def select_paths(
 
 class PostProcess:
     """Outputs -> one lane graph per frame: the paths scoring above the threshold, in metres, through
-    Path2Graph (paper Alg. 2)."""
+    Path2Graph (paper Alg. 2); `scored` adds each edge's score (a ScoredPostProcess)."""
 
     def __init__(self, config: Config):
         self.encoder, self.head = config.encoder, config.decoder
@@ -203,6 +204,18 @@ class PostProcess:
                 paths = snap_polylines(paths, probability[frame], self.encoder, self.head.snap_radius)
             graphs.append(path2graph(paths))
         return graphs
+
+    def scored(self, outputs: dict[str, torch.Tensor]) -> list[tuple[LaneGraph, np.ndarray]]:
+        """Per frame (the graph `__call__` gives, each edge's score): the highest score among the paths
+        that give it (path2graph_scored)."""
+        probability = lane_probability(outputs)
+        scored = []
+        for frame, (scores, points) in enumerate(select_paths(outputs, self.head.score_threshold)):
+            paths = [self.encoder.polyline_to_metres(p.numpy()) for p in points]
+            if probability is not None:
+                paths = snap_polylines(paths, probability[frame], self.encoder, self.head.snap_radius)
+            scored.append(path2graph_scored(paths, scores.numpy()))
+        return scored
 
 
 def build(config: Config) -> Built:

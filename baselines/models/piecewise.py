@@ -12,6 +12,7 @@ its lane and direction loss (fine_bev.py).
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -30,7 +31,7 @@ from baselines.layers.raster_head import (
     snap_polylines,
 )
 from baselines.layers.targets import Targets
-from benchmark.graphs.piece2graph import piece2graph, suppress_duplicates
+from benchmark.graphs.piece2graph import piece2graph, piece2graph_scored, suppress_duplicates
 from pipeline.lane_graph import LaneGraph
 
 
@@ -220,19 +221,30 @@ class PiecePostProcess:
     """Outputs -> one lane graph per frame: the pieces scoring above the score threshold, in metres, less
     those that duplicate a higher-scoring one (with a duplicate radius), and the links i -> j among them
     whose association probability passes the link threshold, through Piece2Graph (which joins linked
-    ends at their mean)."""
+    ends at their mean); `scored` adds each edge's score (a ScoredPostProcess)."""
 
     def __init__(self, config: Config):
         self.encoder, self.head = config.encoder, config.decoder
 
     @torch.no_grad()
     def __call__(self, outputs: dict[str, torch.Tensor]) -> list[LaneGraph]:
+        return [piece2graph(pieces, pairs) for pieces, pairs, _ in self.kept(outputs)]
+
+    def scored(self, outputs: dict[str, torch.Tensor]) -> list[tuple[LaneGraph, np.ndarray]]:
+        """Per frame (the graph `__call__` gives, each edge's score): the highest score among the kept
+        pieces that give it (piece2graph_scored; every kept piece is above the threshold already)."""
+        return [piece2graph_scored(pieces, pairs, scores, piece_threshold=0.0)
+                for pieces, pairs, scores in self.kept(outputs)]  # fmt: skip
+
+    @torch.no_grad()
+    def kept(self, outputs: dict[str, torch.Tensor]) -> list[tuple[list[np.ndarray], np.ndarray, np.ndarray]]:
+        """Per frame the kept pieces in metres, their links (L, 2) and their scores."""
         head = self.head
         scores = outputs["logits"][-1].float().sigmoid().cpu()
         points = outputs["points"][-1].float().cpu()
         links = outputs["links"].float().sigmoid().cpu()
         probability = lane_probability(outputs)
-        graphs = []
+        kept = []
         frames = zip(scores, points, links, strict=True)
         for frame, (frame_scores, frame_points, frame_links) in enumerate(frames):
             keep = (frame_scores > head.score_threshold).nonzero().squeeze(1)
@@ -245,5 +257,5 @@ class PiecePostProcess:
             keep = keep[torch.from_numpy(distinct)]
             pieces = [pieces[i] for i in distinct]
             pairs = (frame_links[keep][:, keep] > head.link_threshold).nonzero().numpy()
-            graphs.append(piece2graph(pieces, pairs))
-        return graphs
+            kept.append((pieces, pairs, frame_scores[keep].numpy()))
+        return kept

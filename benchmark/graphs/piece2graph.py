@@ -22,7 +22,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial.distance import cdist
 
-from pipeline.lane_graph import LaneGraph
+from pipeline.lane_graph import LaneGraph, graph_of_edges
 
 
 def suppress_duplicates(
@@ -63,6 +63,19 @@ def piece2graph(
 ) -> LaneGraph:
     """pieces: (n_i, 2) polylines in driving order; links: (L, 2) piece indices (src, dst).
     Scores default to 1 (keep everything). Coordinates stay float64."""
+    return piece2graph_scored(pieces, links, piece_scores, link_scores, piece_threshold, link_threshold)[0]
+
+
+def piece2graph_scored(
+    pieces: Sequence[np.ndarray],
+    links: np.ndarray,
+    piece_scores: np.ndarray | None = None,
+    link_scores: np.ndarray | None = None,
+    piece_threshold: float = 0.5,
+    link_threshold: float = 0.5,
+) -> tuple[LaneGraph, np.ndarray]:
+    """(piece2graph's graph, each of its edges' score): the highest score among the kept pieces whose
+    consecutive points give that edge (`piece_scores` None: every score 0.0)."""
     links = np.asarray(links, np.int64).reshape(-1, 2)
     keep_piece = (
         np.ones(len(pieces), bool) if piece_scores is None else np.asarray(piece_scores) >= piece_threshold
@@ -74,7 +87,7 @@ def piece2graph(
     keep_link &= keep_piece[links[:, 0]] & keep_piece[links[:, 1]]
     kept = np.flatnonzero(keep_piece)
     if len(kept) == 0:
-        return LaneGraph.empty()
+        return LaneGraph.empty(), np.zeros(0)
     chains = [np.asarray(pieces[i], np.float64).reshape(-1, 2) for i in kept]
     sizes = np.array([len(c) for c in chains])
     points = np.concatenate(chains)
@@ -102,6 +115,8 @@ def piece2graph(
     is_last = np.zeros(len(points), bool)
     is_last[end] = True
     src, dst = vertex[:-1][~is_last[:-1]], vertex[1:][~is_last[:-1]]
-    n = len(xy)
-    key = np.unique((src * n + dst)[src != dst])
-    return LaneGraph(xy[:, 0], xy[:, 1], (key // n).astype(np.int32), (key % n).astype(np.int32))
+    if piece_scores is None:  # the models' post-processing, a hot path: no score to keep
+        graph, _ = graph_of_edges(xy[:, 0], xy[:, 1], src, dst)
+        return graph, np.zeros(len(graph.src))
+    point_score = np.repeat(np.asarray(piece_scores, np.float64)[kept], sizes)
+    return graph_of_edges(xy[:, 0], xy[:, 1], src, dst, point_score[:-1][~is_last[:-1]])

@@ -1,7 +1,7 @@
 """OpenLane-V2 submissions' restricted unpickler (benchmark/formats/openlanev2_submission.py) against pickles
 that run nothing but blow up in memory or time: a memo slot far past the file's opcodes, a structure repeated
-by memo references, a container within itself; and lanes whose numbers a float cast would change (complex,
-strings)."""
+by memo references, a container within itself; lanes whose numbers a float cast would change (complex,
+strings); a method that would break the report's lines."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmark.formats.base import FormatError
-from benchmark.formats.openlanev2_submission import lanes_of, load_pickle
+from benchmark.formats.base import FormatError, Source
+from benchmark.formats.openlanev2_submission import lanes_of, load_pickle, read_submission
 
 REFUSED = ("refused: a submission holds only dicts, lists, tuples, strings, numbers and numpy arrays; "
            "nothing in it was run")  # fmt: skip
@@ -97,3 +97,15 @@ def test_lane_points_a_float_cast_would_change_are_refused(tmp_path, points, pro
     integers = {**prediction, "lane_centerline": [whole]}
     assert lanes_of(integers, tmp_path / "s.pkl", key).points[0].tolist() == [[0, 0, 0], [3, 4, 1]]
 
+
+
+@pytest.mark.parametrize("method", ["mine\n\n| forged | row |", "tab\there", "bell\x07"])
+def test_a_method_that_is_not_one_printable_line_is_refused(tmp_path, method):
+    # the method is written into report.md's tables: a newline there starts rows of the submitter's own
+    path = tmp_path / "submission.pkl"
+    path.write_bytes(pickle.dumps({"method": method, "results": {}}, protocol=4))
+    with pytest.raises(FormatError) as refused:
+        read_submission(Source.of(path))
+    assert str(refused.value) == f'{path}: "method" {method!r} is not one line of printable text'
+    path.write_bytes(pickle.dumps({"method": "TopoNet (r50)", "results": {}}, protocol=4))
+    assert read_submission(Source.of(path)).method == "TopoNet (r50)"

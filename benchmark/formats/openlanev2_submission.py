@@ -371,6 +371,8 @@ def method_of(data: dict, path: Path) -> str | None:
     method = data.get("method")
     if method is not None and not isinstance(method, str):
         raise FormatError(f'{path}: "method" is a {type(method).__name__}, not a string')
+    if method is not None and not method.isprintable():  # it is printed, and written into report.md's tables
+        raise FormatError(f'{path}: "method" {method[:60]!r} is not one line of printable text')
     return method
 
 

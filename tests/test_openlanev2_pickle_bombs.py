@@ -8,26 +8,13 @@ from __future__ import annotations
 import pickle
 import resource
 import struct
-from pathlib import Path
 
 import numpy as np
 import pytest
+from test_openlanev2_submission import REFUSED, refusal
 
 from benchmark.formats.base import FormatError, Source
 from benchmark.formats.openlanev2_submission import lanes_of, load_pickle, read_submission
-
-REFUSED = ("refused: a submission holds only dicts, lists, tuples, strings, numbers and numpy arrays; "
-           "nothing in it was run")  # fmt: skip
-
-
-def refusal(tmp_path: Path, data: bytes) -> str:
-    path = tmp_path / "bomb.pkl"
-    path.write_bytes(data)
-    with pytest.raises(FormatError) as refused:
-        load_pickle(path)
-    message = str(refused.value)
-    assert "\n" not in message and message.startswith(f"{path}: ")
-    return message.removeprefix(f"{path}: ")
 
 
 def test_a_memo_slot_past_the_files_opcodes_is_refused_before_pickle_sizes_its_memo(tmp_path):

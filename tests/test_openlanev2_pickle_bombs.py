@@ -96,3 +96,16 @@ def test_a_method_that_is_not_one_printable_line_is_refused(tmp_path, method):
     assert str(refused.value) == f'{path}: "method" {method!r} is not one line of printable text'
     path.write_bytes(pickle.dumps({"method": "TopoNet (r50)", "results": {}}, protocol=4))
     assert read_submission(Source.of(path)).method == "TopoNet (r50)"
+
+
+@pytest.mark.parametrize("confidence, said", [
+    (10**400, "an integer past a float's range"),  # float() overflows: a traceback before
+    ("x" * 100, repr("x" * 100)[:60] + "..."),
+], ids=["huge int", "long string"])  # fmt: skip
+def test_a_confidence_that_is_no_float_is_one_short_line(tmp_path, confidence, said):
+    key, path = ("val", "s", "1"), tmp_path / "s.pkl"
+    prediction = {"lane_centerline": [{"id": 1, "points": np.zeros((2, 3)), "confidence": confidence}],
+                  "topology_lclc": np.zeros((1, 1))}  # fmt: skip
+    with pytest.raises(FormatError) as refused:
+        lanes_of(prediction, path, key)
+    assert str(refused.value) == f"{path}: frame {key}: lane 1: confidence: {said} is not a finite number"

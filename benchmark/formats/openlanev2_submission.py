@@ -424,9 +424,17 @@ def finite_array(value, what: str) -> np.ndarray:
 def finite_number(value, what: str) -> float:
     if isinstance(value, np.ndarray) and value.shape == ():
         value = value[()]
-    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
+        shown = repr(value)
+        shown = shown if len(shown) <= 60 else shown[:60] + "..."
+        raise FormatError(f"{what}: {shown} is not a finite number")
+    try:
+        number = float(value)
+    except OverflowError:  # an int of more digits than a float holds: JSON and pickles hold any
+        raise FormatError(f"{what}: an integer past a float's range is not a finite number") from None
+    if not math.isfinite(number):
         raise FormatError(f"{what}: {value!r} is not a finite number")
-    return float(value)
+    return number
 
 
 def read_submission(source: Source, keep: bool = False) -> Submission:

@@ -107,7 +107,7 @@ SCHEMAS[ANNOTATED_LANES] = pa.schema(
         ("lane_sizes", i32_list),  # points per lane
         ("points", f64_list),  # every lane's (n, 3) points in OpenLane-V2's ego frame, flat, lane after lane
         ("links", f64_list),  # topology_lclc, (L, L) row-major
-        ("images_missing", pa.int32()),  # the frame's cameras whose image file is absent
+        ("images_missing", pa.int32()),  # its cameras whose image file is absent; 1 where it names none
     ]
 )
 

@@ -191,6 +191,16 @@ def test_absent_images_are_counted_and_recorded(tmp_path):
     assert pq.read_table(out / "annotated_lanes").column("images_missing").to_pylist() == [7, 7, 7]
 
 
+def test_frames_naming_no_camera_count_as_without_images(tmp_path):
+    """A frame file whose `sensor` is empty (as written from an AV2 log without calibration) has no image:
+    counted, so that `cli train` refuses the folder before any work rather than at its first frame."""
+    root, out = tmp_path / "olv2", tmp_path / "out"
+    segment(root, "00001", 2, cameras=())
+    summary = run(root, out, subset="A")
+    assert summary["frames_without_images"] == 2 and PreparedData.open(out).frames_without_images == 2
+    assert pq.read_table(out / "annotated_lanes").column("images_missing").to_pylist() == [1, 1]
+
+
 def test_subset_narrows_a_mixed_root(tmp_path):
     root = tmp_path / "olv2"
     segment(root, "00001", 2)

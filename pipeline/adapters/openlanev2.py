@@ -154,7 +154,7 @@ def segment_city(segment_id: str, meta: dict, city_of: dict[str, str], cities: P
 def read_json(path: Path) -> dict:
     try:
         value = json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+    except (OSError, ValueError) as error:  # a parse error, bad UTF-8, an int of more digits than Python reads
         raise DataError(path, "JSON", f"cannot be read: {error}") from error
     except RecursionError:  # Python's reader stops some hundreds of levels deep
         raise DataError(path, "JSON", "cannot be read: arrays or objects nested too deeply") from None
@@ -281,6 +281,7 @@ def read_frame(path: Path, ref: SegmentRef, root: Path) -> tuple[Frame, FrameFil
     check_identity(data, ref, path)
     ego_to_world = rigid(item(data, "pose", path, "frame"), path, "pose")
     cameras, missing = read_cameras(item(data, "sensor", path, "frame"), root, path)
+    missing = missing if cameras else 1  # no camera, no image: counted, so that `cli train` refuses it first
     if "annotation" not in data:
         raise DataError(path, "annotation", "missing: a frame without annotations (as in OpenLane-V2's test "
                         "split) gives no lane graph to prepare")  # fmt: skip

@@ -31,3 +31,11 @@ def test_a_json_file_nested_too_deeply_is_a_parse_error_of_that_file(tmp_path):
     assert str(refused.value) == (
         f"{tmp_path / 'deep.txt'}: neither a pickle nor JSON (arrays or objects nested too deeply to read)"
     )
+
+
+def test_a_json_file_with_an_int_of_too_many_digits_is_a_parse_error_of_that_file(tmp_path):
+    path = tmp_path / "big.json"
+    path.write_text('{"results": [{"sample_token": "a", "vectors": [' + "9" * 5000 + "]}]}")
+    with pytest.raises(FormatError) as refused:
+        load_json(Source.of(path))
+    assert str(refused.value).startswith(f"{path}: not a JSON result file (Exceeds the limit (4300 digits)")

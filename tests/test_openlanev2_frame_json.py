@@ -28,3 +28,11 @@ def test_points_written_as_strings_are_refused(tmp_path, value):
     read = numbers([[1, 2, 3], [4.5, 5, 6]], (None, 3), tmp_path / "f.json", "points")
     assert read.dtype == np.float64 and read.tolist() == [[1, 2, 3], [4.5, 5, 6]]
     assert numbers([], (None, None), tmp_path / "f.json", "annotation.topology_lclc").shape == (0, 0)
+
+
+def test_a_frame_file_with_an_int_of_too_many_digits_is_one_line_naming_it(tmp_path):
+    path = tmp_path / "315971916960141000.json"
+    path.write_text('{"timestamp": ' + "9" * 5000 + "}")  # Python's int reading stops at 4300 digits
+    with pytest.raises(DataError) as refused:
+        read_json(path)
+    assert str(refused.value).startswith(f"{path}: JSON: cannot be read: Exceeds the limit (4300 digits)")

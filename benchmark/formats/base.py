@@ -72,9 +72,12 @@ class Source:
                     self._parsed = json.load(file)
                 except (json.JSONDecodeError, UnicodeDecodeError) as error:
                     self._parsed = error
-                except RecursionError:  # Python's reader stops some hundreds of levels deep: a parse error
-                    self._parsed = json.JSONDecodeError("nested too deeply", "", 0)
-                    self._parsed.args = ("arrays or objects nested too deeply to read",)
+                except (RecursionError, ValueError) as error:  # too deep, an int of too many digits
+                    self._parsed = json.JSONDecodeError("unreadable", "", 0)
+                    self._parsed.args = (
+                        "arrays or objects nested too deeply to read" if isinstance(error, RecursionError)
+                        else str(error),
+                    )
             self._tried = True
         parsed = self._parsed
         if not keep:

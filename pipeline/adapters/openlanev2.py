@@ -154,7 +154,7 @@ def segment_city(segment_id: str, meta: dict, city_of: dict[str, str], cities: P
 def read_json(path: Path) -> dict:
     try:
         value = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as error:  # a parse error, bad UTF-8, an int of more digits than Python reads
+    except (OSError, ValueError) as error:  # a parse error, bad UTF-8, an int of too many digits
         raise DataError(path, "JSON", f"cannot be read: {error}") from error
     except RecursionError:  # Python's reader stops some hundreds of levels deep
         raise DataError(path, "JSON", "cannot be read: arrays or objects nested too deeply") from None

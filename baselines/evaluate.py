@@ -208,8 +208,8 @@ def floor_scores(
 # them (Built.scored_graphs: LaneGAP's paths, MapTR's and STSU's pieces), else 1.0 (HDMapNet's rasters).
 SCORED = ("each lane's confidence is the mean of its edges' scores, each edge's the highest score of the "
           "model's {instances} that give it")  # fmt: skip
-UNSCORED = ("every lane's confidence is 1.0 (the model's post-processing keeps no instance score), which "
-            "makes OpenLane-V2's DET_l one point of its precision-recall curve")  # fmt: skip
+UNSCORED = ("every lane's confidence is 1.0 (the model's post-processing keeps no scores), which makes "
+            "OpenLane-V2's DET_l one point of its precision-recall curve")  # fmt: skip
 
 
 def openlanev2_submission(run_dir: Path, graphs: dict[str, LaneGraph], grounds: dict[str, Ground],

@@ -186,7 +186,8 @@ def score(
     reader, source = formats.checked(pred_path, fmt, options)
     check_out(out)
     check_metrics(metrics, out, sweep)
-    params.setdefault("bev_range", default_range(gt_path))
+    # one spelling of a range (50.0X100 as 50x100): cli report compares runs' ranges as text
+    params["bev_range"] = Range.parse(params.get("bev_range") or default_range(gt_path)).text
     metric_params = MetricParams(**params)
     gt = graphs_from_table(read_graph_table(gt_path), Path(gt_path))
     truth = GroundTruth(Path(gt_path), gt, split, workers if workers > 0 else os.cpu_count() or 1,

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.metric import bootstrap
+from pipeline.geometry import Range
 from pipeline.splits.plan import split_file_digests, split_names_digest
 
 METHOD_NAMES = {"lanegap": "LaneGAP", "maptr": "MapTR", "stsu": "STSU", "hdmapnet": "HDMapNet"}
@@ -178,8 +179,12 @@ class Run:
     @property
     def bev_range(self) -> str | None:
         """The range its scores were measured at (metrics.json's metric parameters, WIDTHxLENGTH m); None
-        without scores."""
-        return ((self.metrics or {}).get("metric_params") or {}).get("bev_range")
+        without scores; spelt as Range.text, as cli prepare writes it (cli score kept --range as typed)."""
+        text = ((self.metrics or {}).get("metric_params") or {}).get("bev_range")
+        try:
+            return None if text is None else Range.parse(text).text
+        except ValueError:
+            return text
 
     def score(self, mode: str, metric: str, stat: str = "f1") -> float:
         return float(self.metrics[mode][metric][stat])

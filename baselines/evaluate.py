@@ -162,15 +162,19 @@ def ground_planes(frames: list[dict]) -> dict[str, Ground]:
 
 
 def scored_frames(graphs: dict[str, LaneGraph], ground_truth: dict[str, LaneGraph], data: PreparedData,
-                  grounds: dict[str, Ground]) -> list[Frame]:  # fmt: skip
+                  grounds: dict[str, Ground], edge_scores: dict[str, np.ndarray] | None = None,
+                  ) -> list[Frame]:  # fmt: skip
     """Each predicted frame beside its ground truth, in frame-id order, as the metrics take it; on OpenLane-V2
-    data with its annotated lanes and its ground plane, which the openlanev2 metric scores the predicted
-    graph's lanes (with heights from that plane) against, as `cli score` does."""
+    data with its annotated lanes, its ground plane and the edges' scores (where the model has them), which
+    the openlanev2 metric scores the predicted graph's lanes (with heights from that plane, confidences from
+    those scores) against, as `cli score` scores the run's submission.pkl."""
     frame_ids = sorted(graphs)
     if not data.has_annotated_lanes:
         return [Frame(graphs[frame_id], ground_truth[frame_id]) for frame_id in frame_ids]
     lanes = io.read_annotated_lanes(data.path, frame_ids)
-    return [Frame(graphs[f], ground_truth[f], gt_lanes=lanes[f], ground=grounds[f]) for f in frame_ids]
+    scores = edge_scores or {}
+    return [Frame(graphs[f], ground_truth[f], pred_scores=scores.get(f), gt_lanes=lanes[f], ground=grounds[f])
+            for f in frame_ids]  # fmt: skip
 
 
 def score_predictions(
@@ -291,7 +295,7 @@ def evaluate(
     ground_truth = graphs_from_table(read_graph_table(data.path), data.path)
     metric_params = MetricParams(bev_range=data.bev_range)
     grounds = ground_planes(dataset.frames)
-    frames = scored_frames(inference.graphs, ground_truth, data, grounds)
+    frames = scored_frames(inference.graphs, ground_truth, data, grounds, inference.edge_scores)
     scores, frame_counts = score_predictions(frames, metric_params, bootstrap, metrics)
     scores.update(
         pred=str(run_dir / "predictions.parquet"), gt=str(data.path), frames_predicted=len(inference.graphs)

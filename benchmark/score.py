@@ -167,6 +167,19 @@ def frames_of(pred: Predictions, gt: dict[str, LaneGraph], gt_path: Path) -> lis
     return [p.frame(gt[p.frame_id], lanes[p.frame_id], ground[p.frame_id]) for p in pred]
 
 
+def check_range(bev_range: str, gt_path: Path) -> None:
+    """--range within the ground truth's own crop: beyond it the ground truth has no lanes, and predictions
+    there would count as false ones."""
+    recorded = PreparedData.open(gt_path).manifest.get("parameters", {}).get("bev_range")
+    if recorded is None:  # a graph table, or a folder whose manifest says nothing of its crop
+        return
+    wanted, prepared = Range.parse(bev_range), Range.parse(recorded)
+    if wanted.x_max > prepared.x_max or wanted.y_max > prepared.y_max:
+        raise ValueError(f"--range {bev_range}: wider than the ground truth {gt_path}, prepared at "
+                         f"{prepared.text}: beyond it there is no ground truth; score at {prepared.text} "
+                         "or less, or prepare at the wider range")  # fmt: skip
+
+
 def score(
     pred_path: Path, gt_path: Path, out: Path | None = None, workers: int = 1, bootstrap: int = 0,
     split: str | None = None, fmt: str = formats.AUTO, class_name: str | None = None,
@@ -188,6 +201,7 @@ def score(
     check_metrics(metrics, out, sweep)
     # one spelling of a range (50.0X100 as 50x100): cli report compares runs' ranges as text
     params["bev_range"] = Range.parse(params.get("bev_range") or default_range(gt_path)).text
+    check_range(params["bev_range"], Path(gt_path))
     metric_params = MetricParams(**params)
     gt = graphs_from_table(read_graph_table(gt_path), Path(gt_path))
     truth = GroundTruth(Path(gt_path), gt, split, workers if workers > 0 else os.cpu_count() or 1,

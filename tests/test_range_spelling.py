@@ -37,3 +37,21 @@ def test_a_range_spelt_otherwise_is_recorded_and_reported_as_the_same(tmp_path):
     report = write_report([tmp_path / "runs"], tmp_path / "report", reference="paper", draws=0)
     text = Path(report.path).read_text()
     assert "Left out" not in text and "| ours, OpenLane-V2 `olv2` | typed |" in text
+
+
+def test_a_range_wider_than_the_prepared_crop_is_refused(tmp_path):
+    """Beyond the crop `cli prepare` cut the ground truth to there is no ground truth: a wider --range would
+    count a perfect prediction's lanes there as false (the ground truth's own lanes scored TOPO F1 0.74)."""
+    import pytest
+
+    root, data = tmp_path / "olv2", tmp_path / "data"
+    segment(root, "seg-b", 2, "val")
+    prepare("openlanev2", root, data, TargetOptions(Range.parse("30x60")))
+    keys, annotated = read_openlanev2_keys(data), read_annotated_lanes(data)
+    frames = {keys[f]: AnnotatedLanes(lanes.points, lanes.links, lanes.ids, [0.9] * len(lanes))
+              for f, lanes in annotated.items()}  # fmt: skip
+    write_submission(tmp_path / "submission.pkl", "mine", frames)
+    with pytest.raises(ValueError, match=r"--range 50x100: wider than the ground truth .* prepared at 30x60"):
+        score(tmp_path / "submission.pkl", data, bev_range="50x100", bootstrap=0)
+    narrower = score(tmp_path / "submission.pkl", data, bev_range="20x40", bootstrap=0)
+    assert narrower["metric_params"]["bev_range"] == "20x40"

@@ -28,3 +28,16 @@ def test_run_names_that_are_markup_stay_text(made, tmp_path):  # noqa: F811
     assert sorted(names) == sorted(HOSTILE)
     assert "<img src=q" not in page and 'href="javascript:' not in page
     assert all(html.escape(name, quote=False) in page for name in HOSTILE)  # in the tables, as text
+
+
+def test_a_bar_in_a_cell_stays_in_its_cell():
+    """A run's or a method's name holding `|` is escaped in report.md's tables, so the row keeps its columns
+    (it added a cell before)."""
+    from markdown_it import MarkdownIt
+
+    from benchmark.report.measured_tables import markdown_table
+
+    text = markdown_table(["run", "F1"], [["mine | x", "0.5"]])
+    assert text.splitlines()[2] == "| mine \\| x | 0.5 |"
+    html = MarkdownIt().enable("table").render(text)
+    assert html.count("<td>") == 2 and "<td>mine | x</td>" in html

@@ -58,8 +58,13 @@ JUNCTION_DEFINITION = (
 
 
 def markdown_table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
-    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
+    """A markdown table; a `|` inside a cell (a run folder's or a method's name) is escaped, so that it stays
+    in its cell rather than starting another."""
+
+    def line(cells: list[str]) -> str:
+        return "| " + " | ".join(str(cell).replace("|", "\\|") for cell in cells) + " |"
+
+    return "\n".join([line(header), line(["---"] * len(header)), *map(line, rows)])
 
 
 def bold_best(cells: list[list[str]], values: list[list[float]]) -> None:

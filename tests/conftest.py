@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import pytest
@@ -294,3 +295,16 @@ def real_av2_sweep_prepared(real_av2_sweep_root, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("av2_sweep_prepared")
     cli_prepare("--dataset", "av2", "--root", str(real_av2_sweep_root), "--out", str(out), "--overwrite")
     return out
+
+
+@pytest.fixture(autouse=True)
+def torch_threads_restored():
+    """torch's thread count as before each test: an in-process `train` or `evaluate` sets the run's
+    (config.train.threads), and a later test in the same worker would compute in another summation order
+    (test_piece_models' STSU overfitting fell short of its bar after one)."""
+    torch = sys.modules.get("torch")
+    before = torch.get_num_threads() if torch is not None else None
+    yield
+    if before is not None and torch.get_num_threads() != before:
+        torch.set_num_threads(before)
+

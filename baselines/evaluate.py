@@ -297,13 +297,9 @@ def evaluate(
     grounds = ground_planes(dataset.frames)
     frames = scored_frames(inference.graphs, ground_truth, data, grounds, inference.edge_scores)
     scores, frame_counts = score_predictions(frames, metric_params, bootstrap, metrics)
-    scores.update(
-        pred=str(run_dir / "predictions.parquet"), gt=str(data.path), frames_predicted=len(inference.graphs)
-    )
     metrics = {
-        **scores,
-        "split": split,
-        "data": str(data.path),
+        **scores, "pred": str(run_dir / "predictions.parquet"), "gt": str(data.path),
+        "frames_predicted": len(inference.graphs), "split": split, "data": str(data.path),
         "params": sum(p.numel() for p in built.model.parameters()),  # the thresholds: metric_params
         "model": config.model,
         "weights": source,  # which checkpoint: its file, epoch and step

@@ -40,6 +40,11 @@ class Options:
     min_score: float | None = None  # the kept score
     sweep: bool = False  # also score at each of SWEEP's kept scores
 
+    def given(self) -> list[str]:
+        """The options given, as the command line names them (for a format that takes none of them)."""
+        named = (("--class-name", self.class_name), ("--min-score", self.min_score))
+        return [name for name, value in named if value is not None] + ["--sweep"] * self.sweep
+
 
 @dataclass
 class Source:

@@ -35,14 +35,9 @@ def detect(source: Source) -> bool:
 def check(source: Source, options: Options) -> str | None:
     """None of a result file's options; neither a pickle nor JSON (`--format graph` names the format, and
     an earlier default did)."""
-    given = [
-        name
-        for name, value in (("--class-name", options.class_name), ("--min-score", options.min_score))
-        if value is not None
-    ]
-    if given or options.sweep:
+    if given := options.given():
         return (
-            f"{', '.join(given + ['--sweep'] * options.sweep)}: only for a result file of another codebase "
+            f"{', '.join(given)}: only for a result file of another codebase "
             f"(--format maptrv2 or cgnet); {source.path} is read as a graph table"
         )
     if (refusal := source.pickle_refusal()) is not None:

@@ -495,14 +495,9 @@ def undecided(source: Source) -> str | None:
 
 def check(source: Source, options: Options) -> str | None:
     """None of a result file's options: a submission keeps every lane, each with its confidence."""
-    given = [
-        name
-        for name, value in (("--class-name", options.class_name), ("--min-score", options.min_score))
-        if value is not None
-    ]
-    if given or options.sweep:
+    if given := options.given():
         return (
-            f"{', '.join(given + ['--sweep'] * options.sweep)}: only for a result file of MapTRv2 / LaneGAP "
+            f"{', '.join(given)}: only for a result file of MapTRv2 / LaneGAP "
             f"or CGNet (--format maptrv2 or cgnet); {source.path} is read as an OpenLane-V2 submission"
         )
     return None

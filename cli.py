@@ -445,7 +445,7 @@ def report(
                                     "folders (repeatable: --runs A --runs B)"),
     roundtrip: list[Path] = typer.Option([], "--roundtrip", metavar="JSON", show_default="none",
                                          help="A `cli roundtrip --out` file (repeatable)"),
-    out: Path = typer.Option(..., help="Folder for report.md and its PNGs"),
+    out: Path = typer.Option(..., help="Folder for report.md, its PNGs and report.html"),
     workers: int = typer.Option(
         1, min=0, help="Worker processes of the scores by junction count and report.html's drawings "
         "(0: one per core)"),
@@ -480,7 +480,8 @@ def report(
                               metrics=metrics, browser_frames=browser_frames,
                               thumbnails=thumbnails)  # fmt: skip
     shown, tables = report_tables(result)
-    summary = {"report": str(result.path), "pictures": [str(p) for p in result.pictures], "tables": tables}
+    pictures = [str(p) for p in result.pictures]
+    summary = {"report": str(result.path), "html": str(result.html), "pictures": pictures, "tables": tables}
     printout = Printout(shown, [f"{len(result.pictures)} pictures beside it"])
     finish(summary, printout, [result.path, result.html], as_json)
 

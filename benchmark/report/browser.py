@@ -12,11 +12,11 @@ one base64 string of varints (assets/browser.js decodes it only when the frame i
 from __future__ import annotations
 
 import base64
-import json
 import math
 import os
+import re
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from itertools import combinations
 from pathlib import Path
 
@@ -59,7 +59,7 @@ class BrowserBlock:
     params: MetricParams
     gt: dict[str, LaneGraph]  # every frame of the block that a run scored
     runs: list[BrowserRun]
-    thumbnails: dict[str, str] = field(default_factory=dict)  # frame id -> data: URI of its front camera
+    data: Path | None = None  # the prepared folder, where `--thumbnails` finds the cameras
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ def frame_scores(row: np.ndarray) -> FrameScores:
     return FrameScores(*topo, junction)
 
 
-def browser_blocks(blocks: list[Block], thumbnails: bool) -> tuple[list[BrowserBlock], list[str]]:
+def browser_blocks(blocks: list[Block]) -> tuple[list[BrowserBlock], list[str]]:
     """The report's blocks as the browser shows them, and a line for each run or block left out."""
     from benchmark.graph_table import graphs_from_table, read_graph_table
 
@@ -123,12 +123,8 @@ def browser_blocks(blocks: list[Block], thumbnails: bool) -> tuple[list[BrowserB
                          f"{unknown[0]}): left out of the frame browser.")  # fmt: skip
         gt = {f: gt_all[f] for f in frames if f in gt_all}
         label = f"{block.dataset} · {block.split or '?'} split"
-        browser = BrowserBlock(
-            block.dataset, block.split or "?", label, MetricParams(**block.metric_params), gt, runs
-        )
-        if thumbnails:
-            browser.thumbnails, note = front_thumbnails(block.data, list(gt))
-            notes += [f"{block.title}: {note}"] if note else []
+        params = MetricParams(**block.metric_params)
+        browser = BrowserBlock(block.dataset, block.split or "?", label, params, gt, runs, block.data)
         shown.append(browser)
         sources.append(block)
     labels = [b.label for b in shown]
@@ -146,9 +142,10 @@ def front_thumbnails(data: Path, frames: list[str]) -> tuple[dict[str, str], str
 
     from benchmark.report.figures import forward_camera
     from pipeline.io import read_table
+    from pipeline.manifest import PreparedData
 
     rows = read_table(data, "frames", columns=["frame_id", "cameras"], filter=column("frame_id").isin(frames))
-    root = Path(json.loads((Path(data) / "manifest.json").read_text())["root"])
+    root = PreparedData.open(data).sensor_root
     thumbs, missing, without = {}, 0, 0
     for row in rows.to_pylist():
         if not row["cameras"]:
@@ -191,9 +188,9 @@ def f1_column(block: BrowserBlock, run: BrowserRun, frames: list[str]) -> np.nda
 
 
 def keep_frames(blocks: list[BrowserBlock], limit: int, seed: int = SEED) -> Kept:
-    """Every frame when there are at most `limit`; else a third of the limit to the largest differences of
-    directed TOPO F1 between two runs of a block, a third to each run's lowest, taken in turn, and the rest
-    a seeded random sample of the others."""
+    """Every frame when there are at most `limit`; else a third of the limit to the largest absolute
+    differences of directed TOPO F1 between two runs of a block (never 0), a third to each run's lowest
+    (never 100 %), taken in turn, and the rest a seeded random sample of the others."""
     everything = [(b, f) for b, block in enumerate(blocks) for f in block.gt]
     if len(everything) <= limit:
         why = {key: [0] for key in everything}
@@ -207,18 +204,12 @@ def keep_frames(blocks: list[BrowserBlock], limit: int, seed: int = SEED) -> Kep
         f1 = {run.name: f1_column(block, run, frames) for run in block.runs}
         for a, c in combinations(block.runs, 2):
             gap = np.abs(f1[a.name] - f1[c.name])
-            order = [
-                i for i in np.argsort(-np.nan_to_num(gap, nan=-1.0), kind="stable") if not np.isnan(gap[i])
-            ]
+            order = [i for i in np.argsort(-np.nan_to_num(gap, nan=-1.0), kind="stable") if gap[i] > 0]
             reasons.append(f"among the largest differences of dir TOPO F1 between {a.name} and {c.name}")
             queues.append((len(reasons) - 1, [(b, frames[i]) for i in order]))
         for run in block.runs:
             values = f1[run.name]
-            order = [
-                i
-                for i in np.argsort(np.nan_to_num(values, nan=2.0), kind="stable")
-                if not np.isnan(values[i])
-            ]
+            order = [i for i in np.argsort(np.nan_to_num(values, nan=2.0), kind="stable") if values[i] < 1]
             reasons.append(f"among {run.name}'s lowest dir TOPO F1")
             worst.append((len(reasons) - 1, [(b, frames[i]) for i in order]))
     for pool, quota in ((queues, limit // 3), (worst, limit // 3)):
@@ -227,14 +218,14 @@ def keep_frames(blocks: list[BrowserBlock], limit: int, seed: int = SEED) -> Kep
     rest = [key for key in everything if key not in why]
     for i in np.random.default_rng(seed).permutation(len(rest))[: max(0, limit - len(why))]:
         why[rest[i]] = [len(reasons) - 1]
-    # a frame kept for one reason is labelled with every list whose kept part holds it
     kept = [key for key in everything if key in why]
     return Kept(kept, why, reasons, len(everything))
 
 
 def take_in_turn(pool: list[tuple[int, list[tuple[int, str]]]], quota: int, why: dict) -> None:
     """Frames from each list of `pool` in turn, best first, until `quota` new frames are kept; a frame that
-    is already kept gains the list's reason."""
+    is already kept gains the list's reason, so a frame kept for one reason is labelled with every list
+    whose kept part holds it."""
     taken, at = 0, [0] * len(pool)
     while taken < quota and any(at[k] < len(frames) for k, (_, frames) in enumerate(pool)):
         for k, (reason, frames) in enumerate(pool):
@@ -316,8 +307,9 @@ def graph_numbers(graph: LaneGraph) -> tuple[list[np.ndarray], np.ndarray]:
 
 @dataclass(frozen=True)
 class FrameTask:
-    """What one frame's drawing needs, picklable for a worker: the ground truth, each run's prediction
-    (None: the run has none for this frame, drawn empty) and the metric's parameters."""
+    """What one frame's drawing needs, picklable for a worker: the ground truth, the prediction of each run
+    that is drawn (one with predictions.parquet; None: it has none for this frame, drawn empty) and the
+    metric's parameters."""
 
     gt: LaneGraph
     predictions: tuple[LaneGraph | None, ...]
@@ -325,14 +317,14 @@ class FrameTask:
 
 
 def frame_task(block: BrowserBlock, frame: str) -> FrameTask:
-    predictions = tuple((run.predictions or {}).get(frame) for run in block.runs)
+    predictions = tuple(run.predictions.get(frame) for run in block.runs if run.predictions is not None)
     return FrameTask(block.gt[frame], predictions, block.params)
 
 
 def frame_drawing(task: FrameTask) -> str:
-    """One frame packed for browser.js: the ground truth's drawing, then for each run of the block its
-    prediction's drawing (empty where it has none), its edges' shares paired (0-100), the ground truth's
-    edges' shares that it paired, and whether it predicted the frame (1) or not (0)."""
+    """One frame packed for browser.js: the ground truth's drawing, then for each drawn run of the block
+    its prediction's drawing (empty where it has none), its edges' shares paired (paired_percent), the
+    ground truth's edges' shares that it paired, and whether it predicted the frame (1) or not (0)."""
     gt, step = task.gt, task.params.step
     numbers, _ = graph_numbers(gt)
     for prediction in task.predictions:
@@ -340,9 +332,15 @@ def frame_drawing(task: FrameTask) -> str:
         drawn, _ = graph_numbers(pred)
         _, p_ok, _, g_ok = matched_vertices(pred, gt, task.params)
         shares = [edge_shares(pred, p_ok, step), edge_shares(gt, g_ok, step)]
-        numbers += drawn + [np.rint(100 * s).astype(np.uint64) for s in shares]
+        numbers += drawn + [paired_percent(s) for s in shares]
         numbers.append(np.array([prediction is not None], np.uint64))
     return base64.b64encode(varints(np.concatenate(numbers))).decode()
+
+
+def paired_percent(shares: np.ndarray) -> np.ndarray:
+    """Shares paired in whole percent, rounded down: 50 or more exactly where half or more is paired (the
+    page's green), so 49.5 % stays red."""
+    return np.floor(100 * np.asarray(shares, np.float64)).astype(np.uint64)
 
 
 def _drawing_chunk(tasks: list[FrameTask]) -> list[str]:
@@ -371,22 +369,45 @@ def frame_drawings(blocks: list[BrowserBlock], frames: list[tuple[int, str]], wo
 
 
 def rounded(value: float | None) -> float | None:
-    return None if value is None else round(value, 4)
+    """A score as the page gets it: finer than it shows (0.1 %), so that it rounds once."""
+    return None if value is None else round(value, 6)
+
+
+def plain(text: str) -> str:
+    """Markdown's code spans as plain text (the page shows notes and labels as text, not markdown)."""
+    return re.sub(r"`([^`]*)`", r"\1", text)
+
+
+def kept_thumbnails(blocks: list[BrowserBlock], kept: Kept) -> tuple[dict[tuple[int, str], str], list[str]]:
+    """The front camera images of the kept frames only ({(block index, frame id): data URI}), and a note
+    per block where some have none."""
+    thumbs, notes = {}, []
+    for b, block in enumerate(blocks):
+        frames = [f for k, f in kept.frames if k == b]
+        if block.data is None or not frames:
+            continue
+        found, note = front_thumbnails(block.data, frames)
+        thumbs |= {(b, f): uri for f, uri in found.items()}
+        notes += [f"{block.label}: {note}"] if note else []
+    return thumbs, notes
 
 
 def browser_data(
-    blocks: list[BrowserBlock], limit: int, notes: list[str], seed: int = SEED, workers: int = 1
-) -> dict:
-    """Everything browser.js reads, JSON-able: the blocks and runs, the kept frames' columns and drawings,
-    the reasons, and what was left out."""
+    blocks: list[BrowserBlock], limit: int, notes: list[str], seed: int = SEED, workers: int = 1,
+    thumbnails: bool = False,
+) -> dict:  # fmt: skip
+    """Everything browser.js reads, JSON-able: the blocks and runs, the kept frames' columns and drawings
+    (`thumbnails`: and front camera images), the reasons, and what was left out."""
     from benchmark.report.style import STYLE
 
     kept = keep_frames(blocks, limit, seed)
+    thumbs, thumb_notes = kept_thumbnails(blocks, kept) if thumbnails else ({}, [])
     drawings = frame_drawings(blocks, kept.frames, workers)
     every = [(b, run) for b, block in enumerate(blocks) for run in block.runs]  # the runs' columns, in order
     names = ("id", "block", "why", "junctions", "length", "drawing", "thumbnail")
     columns: dict[str, list] = {name: [] for name in names}
-    scores = [{"p": [], "r": [], "f1": [], "jf1": []} for _ in every]
+    # per run: P, R, F1 and J-TOPO F1 of each kept frame, and whether it scored the frame (0 or 1)
+    scores = [{"p": [], "r": [], "f1": [], "jf1": [], "scored": []} for _ in every]
     for (b, frame), drawing in zip(kept.frames, drawings):
         block, gt = blocks[b], blocks[b].gt[frame]
         edges = unique_edges(gt, True)
@@ -394,7 +415,7 @@ def browser_data(
         # the directed junctions of the metric's densified ground truth, as each of its count rows has them
         row = next(run.counts[frame] for run in block.runs if frame in run.counts)
         values = (frame, b, kept.why[(b, frame)], int(row[DIRECTED["n_junctions"]]), round(float(length), 1),
-                  drawing, block.thumbnails.get(frame, ""))  # fmt: skip
+                  drawing, thumbs.get((b, frame), ""))  # fmt: skip
         for name, value in zip(names, values):
             columns[name].append(value)
         for column, (run_block, run) in zip(scores, every):
@@ -402,12 +423,14 @@ def browser_data(
             s = frame_scores(row) if row is not None else FrameScores(None, None, None, None)
             for key, value in (("p", s.precision), ("r", s.recall), ("f1", s.f1), ("jf1", s.junction_f1)):
                 column[key].append(rounded(value))
-    runs = [{"name": run.name, "block": b} for b, run in every]
+            column["scored"].append(int(row is not None))
+    # drawn: the run has predictions.parquet (its drawings are in each frame's, in the runs' order)
+    runs = [{"name": run.name, "block": b, "drawn": run.predictions is not None} for b, run in every]
     left_out = kept.total - len(kept.frames)
     return {
         "style": STYLE.as_json(),
         "quantum": QUANTUM,
-        "blocks": [{"label": block.label, "dataset": block.dataset, "split": block.split,
+        "blocks": [{"label": plain(block.label), "dataset": block.dataset, "split": block.split,
                     "range": crop_of(block)} for block in blocks],
         "runs": runs,
         "frames": columns,
@@ -416,7 +439,7 @@ def browser_data(
         "total": kept.total,
         "left_out": left_out,
         "limit": limit,
-        "notes": notes,
+        "notes": [plain(note) for note in notes + thumb_notes],
     }  # fmt: skip
 
 

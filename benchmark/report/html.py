@@ -97,8 +97,8 @@ def write_html(
     """report.html beside report.md (`markdown`): its content, then the frame browser of the blocks' frames
     (at most `frames` of them; `thumbnails`: each frame's front camera image, small), its drawings made in
     `workers` processes (0: one per core)."""
-    shown, notes = browser_blocks(blocks, thumbnails)
-    data = browser_data(shown, frames, notes, workers=workers)
+    shown, notes = browser_blocks(blocks)
+    data = browser_data(shown, frames, notes, workers=workers, thumbnails=thumbnails)
     if not shown:
         data["empty"] = (
             "No run here has per-frame results with its ground truth found, so there are no frames to browse."

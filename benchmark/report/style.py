@@ -24,7 +24,12 @@ class DrawingStyle:
     # the arrow halfway along each piece: its shaft reaches this far (m) on each side of the middle
     arrow_half_length: float = 0.8
     arrow_head: float = 0.9  # the head's length (m) in the SVG; matplotlib's mutation_scale below
+    arrow_head_side: float = 0.45  # the SVG head's half width, as a share of its length
     arrow_mutation_scale: float = 7.0
+    # the SVG's stroke widths (m, in the BEV frame; matplotlib's are in points, figures.py)
+    svg_edge_width: float = 0.35
+    svg_arrow_width: float = 0.25
+    svg_ego_edge_width: float = 0.1
     # the ego car at the origin, 1.9 m x 4.6 m, nose towards +y
     ego_outline: tuple[tuple[float, float], ...] = ((-0.95, -2.3), (0.95, -2.3), (0.95, 1.5), (0.0, 2.3),
                                                     (-0.95, 1.5))  # fmt: skip
@@ -35,7 +40,8 @@ class DrawingStyle:
         return self.pieces[index % len(self.pieces)]
 
     def as_json(self) -> dict:
-        return asdict(self)
+        """What report.html's browser draws with: all but the piece colours (it colours by the matching)."""
+        return {key: value for key, value in asdict(self).items() if key != "pieces"}
 
 
 STYLE = DrawingStyle()

@@ -29,11 +29,19 @@
     return e;
   }
 
+  const state = (word) => document.body.setAttribute("data-browser", word);
+  // whatever fails below (data of another format, a bug) says so in the page rather than leave it blank
+  window.addEventListener("error", (event) => {
+    say("The frame browser stopped: " + event.message + ". The tables above are complete.");
+    state("stopped");
+  });
+
   let data;
   try {
     data = JSON.parse(document.getElementById("browser-data").textContent);
   } catch (error) {
     say("The frame browser's data could not be read (" + error.message + "); the tables above are complete.");
+    state("stopped");
     return;
   }
   for (const note of data.notes) say(note, "note");
@@ -41,6 +49,7 @@
   const N = F.id.length;
   if (!N) {
     say(data.empty || "No frame to browse.");
+    state("ready");
     return;
   }
   if (data.left_out) {
@@ -51,8 +60,8 @@
   const runs = data.runs;
   const percent = (v) => (v === null || v === undefined ? null : 100 * v);
   const shown = (v, digits) => (v === null || v === undefined ? "–" : v.toFixed(digits === undefined ? 1 : digits));
-  const unique = {};
-  for (const id of F.id) unique[id] = (unique[id] || 0) + 1;
+  const unique = new Map(); // frame id -> how many blocks hold it (a Map: an id may be "constructor")
+  for (const id of F.id) unique.set(id, (unique.get(id) || 0) + 1);
 
   // ---- columns: what the table shows and sorts by
   const columns = [
@@ -64,8 +73,9 @@
   ];
   runs.forEach((run, r) => {
     columns.push({label: run.name + " dir TOPO F1", value: (i) => percent(data.scores[r].f1[i]), run: r});
-    columns.push({label: run.name + " J-TOPO F1", value: (i) => percent(data.scores[r].jf1[i]), run: r,
-                  none: (i) => (F.junctions[i] === 0 ? "none" : "–")});
+    // "none": the run scored the frame and it has no junction; "–": not scored, or neither graph has a vertex
+    columns.push({label: run.name + " dir J-TOPO F1", value: (i) => percent(data.scores[r].jf1[i]), run: r,
+                  none: (i) => (data.scores[r].scored[i] && F.junctions[i] === 0 ? "none" : "–")});
   });
 
   // ---- controls
@@ -85,7 +95,7 @@
     controls.appendChild(f);
   }
   const runOptions = runs.map((run, r) => [String(r), run.name]);
-  const metricOptions = [["f1", "dir TOPO F1"], ["jf1", "J-TOPO F1"]];
+  const metricOptions = [["f1", "dir TOPO F1"], ["jf1", "dir J-TOPO F1"]];
   const blockFilter = select([["", "all"]].concat(data.blocks.map((b, k) => [String(k), b.label])), "data");
   const minJunctions = number("junctions-min"), maxJunctions = number("junctions-max");
   const belowRun = select([["", "–"]].concat(runOptions), "below-run");
@@ -129,7 +139,7 @@
     return true;
   }
 
-  function refresh(keepPage) {
+  function refresh() {
     order = [];
     for (let i = 0; i < N; i++) if (passes(i)) order.push(i);
     if (sortColumn !== null) {
@@ -144,7 +154,7 @@
         return a - b;
       });
     }
-    if (!keepPage) page = 0;
+    page = 0;
     count.textContent = order.length + " of " + N + " frames";
     drawTable();
   }
@@ -159,7 +169,7 @@
     th.addEventListener("click", () => {
       sortDown = sortColumn === k ? !sortDown : false;
       sortColumn = k;
-      refresh(false);
+      refresh();
     });
     headRow.appendChild(th);
   });
@@ -203,11 +213,11 @@
   }
 
   [blockFilter, minJunctions, maxJunctions, belowRun, belowMetric, belowValue, diffA, diffB, diffMetric,
-   diffValue].forEach((input) => input.addEventListener("input", () => refresh(false)));
+   diffValue].forEach((input) => input.addEventListener("input", refresh));
   reset.addEventListener("click", () => {
     controls.querySelectorAll("input").forEach((input) => { input.value = ""; });
     controls.querySelectorAll("select").forEach((s) => { s.selectedIndex = 0; });
-    refresh(false);
+    refresh();
   });
 
   // ---- a frame's drawing: varints in base64 (browser.py's frame_drawing)
@@ -247,7 +257,7 @@
     const gt = graphOf(next);
     const predictions = [];
     runs.forEach((run, r) => {
-      if (run.block !== F.block[i]) return;
+      if (run.block !== F.block[i] || !run.drawn) return; // a run without predictions has no drawing
       const graph = graphOf(next);
       const shares = Array.from({length: graph.src.length}, next);
       const found = Array.from({length: gt.src.length}, next);
@@ -263,7 +273,8 @@
     const svg = svgElement("svg", {viewBox: x0 + " " + -y1 + " " + (x1 - x0) + " " + (y1 - y0), width, height,
                                    role: "img", "aria-label": label});
     svg.appendChild(svgElement("rect", {x: x0, y: -y1, width: x1 - x0, height: y1 - y0, fill: S.background}));
-    const edges = svgElement("g", {"stroke-width": 0.35, "stroke-linecap": "round"});
+    const edges = svgElement("g", {"stroke-width": S.svg_edge_width, "stroke-linecap": "round",
+                                   class: "edges"});
     const colour = (e) => (shares[e] >= 50 ? S.matched : S.unmatched);
     for (let e = 0; e < graph.src.length; e++) {
       const s = graph.src[e], d = graph.dst[e];
@@ -280,16 +291,17 @@
       if (!length) continue;
       const ux = dx / length, uy = dy / length, mx = (graph.x[s] + graph.x[d]) / 2, my = (graph.y[s] + graph.y[d]) / 2;
       const tipX = mx + S.arrow_half_length * ux, tipY = my + S.arrow_half_length * uy;
-      const baseX = tipX - S.arrow_head * ux, baseY = tipY - S.arrow_head * uy, side = S.arrow_head * 0.45;
+      const baseX = tipX - S.arrow_head * ux, baseY = tipY - S.arrow_head * uy;
+      const side = S.arrow_head * S.arrow_head_side;
       svg.appendChild(svgElement("line", {x1: mx - S.arrow_half_length * ux, y1: -(my - S.arrow_half_length * uy),
-                                          x2: baseX, y2: -baseY, stroke: colour(e), "stroke-width": 0.25,
+                                          x2: baseX, y2: -baseY, stroke: colour(e), "stroke-width": S.svg_arrow_width,
                                           class: "arrow"}));
       const head = [[tipX, tipY], [baseX - side * uy, baseY + side * ux], [baseX + side * uy, baseY - side * ux]];
       svg.appendChild(svgElement("polygon", {points: head.map(([px, py]) => px + "," + -py).join(" "),
                                              fill: colour(e), class: "arrow"}));
     }
     svg.appendChild(svgElement("polygon", {points: S.ego_outline.map(([px, py]) => px + "," + -py).join(" "),
-                                           fill: S.ego_fill, stroke: S.ego_edge, "stroke-width": 0.1,
+                                           fill: S.ego_fill, stroke: S.ego_edge, "stroke-width": S.svg_ego_edge_width,
                                            class: "ego"}));
     return svg;
   }
@@ -299,9 +311,10 @@
 
   function scoreLine(r, i) {
     const s = data.scores[r];
-    const jf1 = s.jf1[i] === null ? (F.junctions[i] ? "–" : "none (no junction)") : shown(percent(s.jf1[i]));
+    const none = s.scored[i] && !F.junctions[i] ? "none (no junction)" : "–";
+    const jf1 = s.jf1[i] === null ? none : shown(percent(s.jf1[i]));
     return "dir TOPO P " + shown(percent(s.p[i])) + " R " + shown(percent(s.r[i])) + " F1 " +
-           shown(percent(s.f1[i])) + " · J-TOPO F1 " + jf1 + " (%)";
+           shown(percent(s.f1[i])) + " · dir J-TOPO F1 " + jf1 + " (%)";
   }
 
   function choose(i, write) {
@@ -311,7 +324,7 @@
     if (row) { row.classList.add("chosen"); row.scrollIntoView({block: "nearest"}); }
     if (write) {
       let hash = "frame=" + encodeURIComponent(F.id[i]);
-      if (unique[F.id[i]] > 1) hash += "&data=" + F.block[i];
+      if (unique.get(F.id[i]) > 1) hash += "&data=" + F.block[i];
       history.replaceState(null, "", "#" + hash);
     }
     let frame;
@@ -327,31 +340,44 @@
                           F.length[i].toFixed(1) + " m of lanes · kept because " +
                           F.why[i].map((r) => data.reasons[r]).join("; "));
     const panels = element("div", {class: "panels"});
-    if (foundBy === null || !frame.predictions.some((p) => p.run === foundBy)) foundBy = frame.predictions.length ? frame.predictions[0].run : null;
+    if (foundBy === null || !frame.predictions.some((p) => p.run === foundBy)) {
+      foundBy = frame.predictions.length ? frame.predictions[0].run : null;
+    }
     const gtPanel = element("div", {class: "panel", "data-panel": "ground truth"});
-    const chooser = select(frame.predictions.map((p) => [String(p.run), runs[p.run].name]), "found-by");
-    chooser.value = String(foundBy);
-    chooser.addEventListener("change", () => { foundBy = Number(chooser.value); choose(i, false); });
     const found = frame.predictions.find((p) => p.run === foundBy);
     const gtShares = found ? found.found : Array(frame.gt.src.length).fill(0);
-    const heading = element("h4", {}, "ground truth, edges found by ");
-    heading.appendChild(chooser);
+    const heading = element("h4", {}, found ? "ground truth, edges found by " : "ground truth");
+    if (found) { // the chooser names the drawn runs only: a run without predictions found nothing to show
+      const chooser = select(frame.predictions.map((p) => [String(p.run), runs[p.run].name]), "found-by");
+      chooser.value = String(foundBy);
+      chooser.addEventListener("change", () => { foundBy = Number(chooser.value); choose(i, false); });
+      heading.appendChild(chooser);
+    }
     gtPanel.appendChild(heading);
     gtPanel.appendChild(drawing(frame.gt, gtShares, block.range, "ground truth"));
     const paired = gtShares.filter((s) => s >= 50).length;
     gtPanel.appendChild(element("div", {class: "scores"}, frame.gt.x.length + " vertices, " + frame.gt.src.length +
-                                " edges; " + paired + " found by " + (found ? runs[found.run].name : "–")));
-    if (F.thumbnail[i]) gtPanel.appendChild(element("img", {class: "thumbnail", src: F.thumbnail[i], alt: "front camera"}));
+                                " edges" + (found ? "; " + paired + " found by " + runs[found.run].name : "")));
+    if (F.thumbnail[i]) {
+      gtPanel.appendChild(element("img", {class: "thumbnail", src: F.thumbnail[i], alt: "front camera"}));
+    }
     panels.appendChild(gtPanel);
-    for (const p of frame.predictions) {
-      const panel = element("div", {class: "panel", "data-panel": runs[p.run].name});
-      panel.appendChild(element("h4", {}, runs[p.run].name));
-      panel.appendChild(drawing(p.graph, p.shares, block.range, runs[p.run].name));
-      let line = scoreLine(p.run, i);
-      if (!p.predicted) line += data.scores[p.run].f1[i] === null && !frame.gt.x.length ? "" : " · no prediction for this frame";
+    runs.forEach((run, r) => {
+      if (run.block !== F.block[i]) return;
+      const panel = element("div", {class: "panel", "data-panel": run.name});
+      panel.appendChild(element("h4", {}, run.name));
+      const p = frame.predictions.find((q) => q.run === r);
+      let line = scoreLine(r, i);
+      if (!p) {
+        panel.appendChild(element("p", {class: "note not-drawn"}, "not drawn: the run has no predictions.parquet"));
+      } else {
+        panel.appendChild(drawing(p.graph, p.shares, block.range, run.name));
+        const empty = data.scores[r].f1[i] === null && !frame.gt.x.length; // nothing to predict
+        if (!p.predicted && !empty) line += " · no prediction for this frame";
+      }
       panel.appendChild(element("div", {class: "scores"}, line));
       panels.appendChild(panel);
-    }
+    });
     const legend = element("p", {class: "note"}, "Green: an edge whose densified points the metric's matching " +
                            "paired (half or more), red: not; arrows in the driving direction, one per piece; " +
                            "the ego car in grey. ← → or ↑ ↓ step through the listed frames.");
@@ -367,9 +393,16 @@
     choose(order[at], true);
   }
 
+  function onScreen() {
+    const box = root.getBoundingClientRect();
+    return box.top < window.innerHeight && box.bottom > 0;
+  }
+
+  // the arrows step only through a chosen frame's list, with the browser in sight: elsewhere they scroll
   document.addEventListener("keydown", (event) => {
     const tag = (event.target.tagName || "").toLowerCase();
-    if (tag === "input" || tag === "select" || tag === "textarea") return;
+    if (tag === "input" || tag === "select" || tag === "textarea" || tag === "button") return;
+    if (current < 0 || !onScreen()) return;
     if (event.key === "ArrowDown" || event.key === "ArrowRight") { step(1); event.preventDefault(); }
     if (event.key === "ArrowUp" || event.key === "ArrowLeft") { step(-1); event.preventDefault(); }
   });
@@ -397,9 +430,9 @@
     root.scrollIntoView();
   }
 
-  refresh(false);
+  refresh();
   window.addEventListener("hashchange", fromAddress);
   fromAddress();
   performance.mark("browser-ready");
-  document.body.setAttribute("data-browser", "ready");
+  state("ready");
 })();

@@ -401,7 +401,7 @@
   // the arrows step only through a chosen frame's list, with the browser in sight: elsewhere they scroll
   document.addEventListener("keydown", (event) => {
     const tag = (event.target.tagName || "").toLowerCase();
-    if (tag === "input" || tag === "select" || tag === "textarea" || tag === "button") return;
+    if (tag === "input" || tag === "select" || tag === "textarea") return;
     if (current < 0 || !onScreen()) return;
     if (event.key === "ArrowDown" || event.key === "ArrowRight") { step(1); event.preventDefault(); }
     if (event.key === "ArrowUp" || event.key === "ArrowLeft") { step(-1); event.preventDefault(); }

@@ -4,10 +4,10 @@ the junction count and lane length of its ground truth, and its drawings (the gr
 prediction, coordinates quantised to QUANTUM, each edge's share of densified points that the metric's own
 matching paired: benchmark/report/figures.py's matched_vertices, as `cli viz` colours them).
 
-Above `frames` frames it keeps those that say most (the largest differences between two runs, each run's
-lowest F1, a seeded random sample), each with the reasons it is there. A frame's drawing is packed into
-one base64 string of varints (assets/browser.js decodes it only when the frame is shown).
-"""
+Above `frames` frames it keeps those that say most (the largest absolute differences between two runs,
+each run's lowest F1, a seeded random sample), each with the reasons it is there. A frame's drawing is
+packed into one base64 string of varints (assets/browser.js decodes it only when the frame is shown); a
+run without predictions.parquet has its scores and no drawing."""
 
 from __future__ import annotations
 

@@ -61,21 +61,21 @@ $(KERNELS): $(STAMP) tools/build_kernels.py $(shell find pipeline benchmark -nam
 # Two models, about 12 minutes on 2 cores from a fresh clone: 7 epochs (560 steps) where the tiny preset,
 # demo-all and the learning checks train 11 (880 steps); docs/BENCHMARKS.md has its time and breakdown.
 demo: $(STAMP)
-	$(call demo_pipeline,$(DEMO),hdmapnet lanegap,,--epochs 7)
+	$(call demo_pipeline,$(DEMO),hdmapnet lanegap,--thumbnails,--epochs 7)
 
 # All four models under the same recipe, then the report with the paper's tables beside it (about 30 minutes).
 demo-all: $(STAMP)
-	$(call demo_pipeline,$(DEMO_ALL),hdmapnet lanegap maptr stsu,--reference paper)
+	$(call demo_pipeline,$(DEMO_ALL),hdmapnet lanegap maptr stsu,--reference paper --thumbnails)
 
 # `make chromium`: Debian's headless browser and its driver for report.html's tests (tests/test_report_html.py,
 # selenium pointed at /usr/bin/chromium and /usr/bin/chromedriver; never a browser download). Installed with
 # apt-get where it exists and they are missing; elsewhere (or without root) nothing is installed, the build
-# goes on and those tests skip with one line.
+# goes on and those tests skip with one line (in CI, where .ci/run sets LANEGRAPH_BROWSER_REQUIRED=1, they fail).
 chromium:
 	@if [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ]; then :; \
 	elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
-		(apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1 \
-		|| (apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1)) \
+		(DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1 \
+		|| (apt-get update -qq >/dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1)) \
 		|| echo "chromium: apt-get could not install chromium chromium-driver: report.html's browser tests skip"; \
 	else echo "chromium: no apt-get (or not root): report.html's browser tests skip"; fi
 

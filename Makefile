@@ -157,7 +157,7 @@ wheelhouse: $(STAMP)
 	echo $(WHEEL_PYTHON) >$(WHEELHOUSE)/python-version
 	du -sh $(WHEELHOUSE)
 
-bench: $(STAMP) $(KERNELS)
+bench: $(STAMP) $(KERNELS) chromium
 	$(PY) -m tools.bench_prepare
 	$(PY) -m tools.bench_metrics
 	$(PY) -m tools.bench_external
@@ -166,6 +166,7 @@ bench: $(STAMP) $(KERNELS)
 	$(PY) -m tools.bench_openlanev2
 	$(PY) -m tools.bench_cgnet
 	$(PY) -m tools.bench_startup
+	$(PY) -m tools.bench_report_html
 
 bench-train: $(STAMP)
 	$(PY) -m tools.bench_train

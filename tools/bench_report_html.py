@@ -119,6 +119,8 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=20_000)
     parser.add_argument("--browser-frames", type=int, default=20_000)
     args = parser.parse_args()
+    if not (Path(CHROMIUM).is_file() and Path(DRIVER).is_file()):
+        raise SystemExit(f"bench_report_html: no Chromium at {CHROMIUM} and {DRIVER} (make chromium)")
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         block, per_frame = synthetic_block(folder, args.frames)

@@ -459,3 +459,16 @@ def test_a_malformed_file_in_a_worker_process_is_the_same_one_line(tmp_path):
     with pytest.raises(DataError, match=rf"^{paths[1]}: JSON: cannot be read: "):
         run(root, tmp_path / "out", workers=2)
     assert run(root, tmp_path / "out", workers=2, on_error="skip", overwrite=True)["frames"] == 3
+
+
+def test_a_subset_the_root_lacks_is_named_with_what_the_root_holds(tmp_path):
+    """--subset B on a root of subset A segments alone: one line naming the root, `--subset B` and what it
+    holds, rather than the line of a root without any segment (which sent the user to check --root)."""
+    root = tmp_path / "olv2"
+    segment(root, "00001", 2)
+    segment(root, "00002", 1)
+    with pytest.raises(ValueError) as caught:
+        run(root, tmp_path / "out", subset="B")
+    holds = "it holds subset A's 2 segments"
+    assert str(caught.value) == f"{root}: --subset B: no segment of subset B here; {holds}"
+    assert not (tmp_path / "out").exists()

@@ -105,7 +105,7 @@ def find_segments(
         raise DataError(root, "root", "is not a folder (expected the folder that holds train/, val/, ...)")
     city_of = read_cities(cities) if cities else None
     splits = [split] if split else sorted(p.name for p in root.iterdir() if p.is_dir())
-    found, seen = [], {}
+    found, seen, of_other_subset = [], {}, 0
     for name in splits:
         folder = root / name
         if not folder.is_dir():
@@ -119,9 +119,15 @@ def find_segments(
             seen[segment.name] = name
             meta = read_json(files[0]) if subset or city_of is not None else {}
             if subset and subset_of(meta, files[0]) != subset:
+                of_other_subset += 1
                 continue
             city = segment_city(segment.name, meta, city_of, cities) if city_of is not None else ""
             found.append(SegmentRef(name, segment.name, files, city))
+    if not found and of_other_subset:  # else a root without segments, refused as such by the caller
+        other, plural = "B" if subset == "A" else "A", "s" * (of_other_subset > 1)
+        in_split = f" in split {split}" if split else ""
+        raise DataError(root, f"--subset {subset}", f"no segment of subset {subset}{in_split} here; it holds "
+                        f"subset {other}'s {of_other_subset} segment{plural}")  # fmt: skip
     return found
 
 

@@ -360,6 +360,13 @@ GOOD_LANE = {"id": 1, "points": np.array([[0.0, 0, 0], [5, 0, 0]]), "confidence"
      "lane 1: confidence: '0.5' is not a finite number"),
     ({"lane_centerline": [GOOD_LANE, GOOD_LANE], "topology_lclc": np.zeros((2, 2))},
      "lane id '1' appears twice"),
+    ({"lane_centerline": [{**GOOD_LANE, "id": 10**5000}], "topology_lclc": np.zeros((1, 1))},
+     "lane_centerline[0]: id is an integer of more than 640 digits, not a string or an integer of at most "
+     "640 digits"),
+    ({"lane_centerline": [{**GOOD_LANE, "id": 1.0}], "topology_lclc": np.zeros((1, 1))},
+     "lane_centerline[0]: id is a float, not a string or an integer of at most 640 digits"),
+    ({"lane_centerline": [{**GOOD_LANE, "id": True}], "topology_lclc": np.zeros((1, 1))},
+     "lane_centerline[0]: id is a bool, not a string or an integer of at most 640 digits"),
     ({"lane_centerline": [GOOD_LANE], "topology_lclc": np.zeros((1, 2))},
      "topology_lclc of shape (1, 2), not (1, 1) for its 1 lanes"),
     ({"lane_centerline": [GOOD_LANE], "topology_lclc": np.full((1, 1), np.nan)},
@@ -372,6 +379,13 @@ def test_a_malformed_frame_is_one_line_naming_the_file_and_the_frame(prepared, t
     with pytest.raises(FormatError) as refused:
         score(path, prepared, bootstrap=0)
     assert str(refused.value) == f"{path}: frame {key}: {problem}"
+
+
+def test_lane_ids_are_strings_and_integers_of_at_most_640_digits_as_text():
+    """numpy's integers read as Python's; the longest integer kept is still turned into text by any Python."""
+    prediction = {"lane_centerline": [{**GOOD_LANE, "id": i} for i in (np.int64(-7), "7a", 10**640 - 1)],
+                  "topology_lclc": np.zeros((3, 3))}  # fmt: skip
+    assert lanes_of(prediction, Path("p.pkl"), ("val", "s", "1")).ids == ["-7", "7a", "9" * 640]
 
 
 def test_what_is_not_a_submission_or_its_data_is_refused_in_one_line(prepared, synth_prepared, tmp_path):

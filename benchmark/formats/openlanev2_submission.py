@@ -12,7 +12,9 @@ data). docs/guide/score.md is the user's page; what each step does and why:
 - A frame's lanes become one AnnotatedLanes as the file holds them (OpenLane-V2's ego frame, with heights):
   what `--metric openlanev2` scores. The paper's metrics score its graph: the lanes joined where
   topology_lclc is above 0.5 (pipeline.lane_graph.scored_graph_of_annotated), clipped to the command's
-  range, each edge scored by the confidence of its lane.
+  range, each edge scored by the confidence of its lane. A lane's id is a string or an integer (as
+  OpenLane-V2 writes them) of at most LANE_ID_DIGITS digits, kept as text: a pickle holds ints of any length,
+  and Python refuses to write out one of more digits than its limit.
 - Traffic elements and topology_lcte are not read: DET_t, TOP_lt and OLS are not computed.
 - Keys are matched to the prepared frames (pipeline.io.read_openlanev2_keys). A key of no prepared frame is
   refused, the first one named; with `--split`, a key counts when its frame is of that split (or, of no
@@ -386,15 +388,15 @@ def lanes_of(predictions, path: Path, key: Key) -> AnnotatedLanes:
     for index, lane in enumerate(predictions["lane_centerline"]):
         if not isinstance(lane, dict) or not {"id", "points", "confidence"} <= lane.keys():
             raise FormatError(f'{where}: lane_centerline[{index}] is not {{"id", "points", "confidence"}}')
-        name = f"{where}: lane {lane['id']!r}"
-        ids.append(str(lane["id"]))
+        ids.append(lane_id_text(lane["id"], f"{where}: lane_centerline[{index}]"))
+        name = f"{where}: lane {shortened(repr(lane['id']))}"
         points.append(finite_array(lane["points"], f"{name}: points"))
         if points[-1].ndim != 2 or points[-1].shape[1] != 3 or len(points[-1]) < 2:
             raise FormatError(f"{name}: points of shape {points[-1].shape}, not (n, 3) with n >= 2")
         confidence.append(finite_number(lane["confidence"], f"{name}: confidence"))
     repeated = [name for name, count in Counter(ids).items() if count > 1]
     if repeated:
-        raise FormatError(f"{where}: lane id {repeated[0]!r} appears twice")
+        raise FormatError(f"{where}: lane id {shortened(repr(repeated[0]))} appears twice")
     if "topology_lclc" not in predictions:
         raise FormatError(f'{where}: no "topology_lclc" in its predictions')
     links = finite_array(predictions["topology_lclc"], f"{where}: topology_lclc")
@@ -404,6 +406,29 @@ def lanes_of(predictions, path: Path, key: Key) -> AnnotatedLanes:
             f"{len(ids)} lanes"
         )
     return AnnotatedLanes(points, links, ids, np.array(confidence, np.float64))
+
+
+# any Python turns an int of this many digits into text: its limit on that (4,300 digits unless set) can be
+# set no lower, and a pickle holds ints of any length
+LANE_ID_DIGITS = 640
+LANE_ID_BOUND = 10**LANE_ID_DIGITS
+
+
+def lane_id_text(value, what: str) -> str:
+    """A lane's id as text (AnnotatedLanes.ids): a string, or an int (Python's or numpy's) of at most
+    LANE_ID_DIGITS digits, as OpenLane-V2 writes them; anything else, one line."""
+    allowed = f"a string or an integer of at most {LANE_ID_DIGITS} digits"
+    if isinstance(value, str):
+        return value
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
+        raise FormatError(f"{what}: id is a {type(value).__name__}, not {allowed}")
+    if not -LANE_ID_BOUND < value < LANE_ID_BOUND:
+        raise FormatError(f"{what}: id is an integer of more than {LANE_ID_DIGITS} digits, not {allowed}")
+    return str(int(value))
+
+
+def shortened(text: str, most: int = 60) -> str:
+    return text if len(text) <= most else text[:most] + "..."
 
 
 def finite_array(value, what: str) -> np.ndarray:
@@ -425,9 +450,7 @@ def finite_number(value, what: str) -> float:
     if isinstance(value, np.ndarray) and value.shape == ():
         value = value[()]
     if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
-        shown = repr(value)
-        shown = shown if len(shown) <= 60 else shown[:60] + "..."
-        raise FormatError(f"{what}: {shown} is not a finite number")
+        raise FormatError(f"{what}: {shortened(repr(value))} is not a finite number")
     try:
         number = float(value)
     except OverflowError:  # an int of more digits than a float holds: JSON and pickles hold any

@@ -211,7 +211,8 @@ def score_tables(pred: Path, gt: Path, result: dict, metrics: tuple[Metric, ...]
         notes.append(score_heading(pred, gt, result))
     others, other_notes = console_tables(metrics, result)
     tables, notes = tables + others, notes + other_notes
-    if source.get("not_computed"):
+    said = any("not_computed" in metric.scores(result) for metric in metrics if metric.console is not None)
+    if source.get("not_computed") and not said:  # a chosen metric's notes (OpenLane-V2's) say it already
         notes.append(f"not computed: {', '.join(source['not_computed'])} (the submission's traffic elements, "
                      "traffic_element and topology_lcte, are not read)")  # fmt: skip
     if result.get("sweep"):

@@ -418,6 +418,11 @@ def test_cli_score_says_the_missing_frames_and_what_is_not_computed(prepared, tm
     assert "(OpenLane-V2 submission, method mine)" in text
     assert "4 frames scored, 2 in the submission (12 lanes), 2 missing (scored as empty)" in text
     assert "not computed: DET_t, TOP_lt, OLS" in text
+    # with OpenLane-V2's metric, whose notes say it too: said once
+    with_metric = CliRunner().invoke(app, [*command, "--metric", "lanegap,openlanev2"])
+    assert with_metric.exit_code == 0, with_metric.output
+    text = " ".join(with_metric.output.split())
+    assert "DET_l" in text and text.count("not computed") == 1 and text.count("TOP_lt") == 1
 
 
 def test_a_submission_as_toponet_writes_it_is_read_with_its_traffic_elements_left_aside(prepared, tmp_path):

@@ -310,3 +310,25 @@ def test_the_gpu_check_names_only_the_files_it_wrote_when_every_model_fails(tmp_
     assert wrote == f"wrote {out / 'summary.json'}"
     summary = json.loads((out / "summary.json").read_text())
     assert [failure["stage"] for failure in summary["failures"]] == ["lanegap", "hdmapnet", "maptr", "stsu"]
+
+
+def test_the_gpu_check_reads_a_tie_in_junction_topo_as_a_tie():
+    """A smoke run's four models at J-TOPO F1 0 were said to be "led by" all four; the lead is read as
+    the table shows it (3 decimals)."""
+    from tools.gpu_check import MODELS, junction_topo_lead
+
+    def rows(*scores: float) -> list[dict]:
+        return [{"model": model, "junction_topo": score} for model, score in zip(MODELS, scores)]
+
+    def lead(*scores: float) -> str:
+        return junction_topo_lead(rows(*scores))
+
+    claim = " (the paper's claim: LaneGAP leads; the report's summary says whether a lead is beyond the "
+    assert lead(0.0, 0.0, 0.0, 0.0).startswith(
+        "Junction TOPO F1 is level: lanegap, hdmapnet, maptr, stsu at 0.000" + claim
+    )
+    assert lead(0.4, 0.40004, 0.1, 0.2).startswith(
+        "Junction TOPO F1 is led by lanegap and hdmapnet, level at 0.400" + claim
+    )
+    assert lead(0.3, 0.5, 0.1, 0.2).startswith("Junction TOPO F1 is led by hdmapnet at 0.500 (")
+    assert lead(0.3).startswith("Junction TOPO F1 0.300: lanegap alone finished, no lead")

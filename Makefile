@@ -71,12 +71,13 @@ demo-all: $(STAMP)
 # selenium pointed at /usr/bin/chromium and /usr/bin/chromedriver; never a browser download). Installed with
 # apt-get where it exists and they are missing; elsewhere (or without root) nothing is installed, the build
 # goes on and those tests skip with one line (in CI, where .ci/run sets LANEGRAPH_BROWSER_REQUIRED=1, they fail).
+# The first try is quiet (it fails where apt's lists are empty); the try after apt-get update shows its errors.
 chromium:
 	@if [ -x /usr/bin/chromium ] && [ -x /usr/bin/chromedriver ]; then :; \
 	elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
 		(DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1 \
-		|| (apt-get update -qq >/dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1)) \
-		|| echo "chromium: apt-get could not install chromium chromium-driver: report.html's browser tests skip"; \
+		|| (apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null)) \
+		|| echo "chromium: apt-get could not install chromium chromium-driver (its errors above): report.html's browser tests skip"; \
 	else echo "chromium: no apt-get (or not root): report.html's browser tests skip"; fi
 
 # The learning contract (tests/test_baselines_learning.py) runs alone, not in `make test`: five trainings

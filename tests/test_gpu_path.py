@@ -331,4 +331,8 @@ def test_the_gpu_check_reads_a_tie_in_junction_topo_as_a_tie():
         "Junction TOPO F1 is led by lanegap and hdmapnet, level at 0.400" + claim
     )
     assert lead(0.3, 0.5, 0.1, 0.2).startswith("Junction TOPO F1 is led by hdmapnet at 0.500 (")
-    assert lead(0.3).startswith("Junction TOPO F1 0.300: lanegap alone finished, no lead")
+    assert lead(0.3).startswith("Junction TOPO F1 0.300: lanegap is the only model with a score, no lead")
+    # a diverged model's nan leads nothing (it led when it came first)
+    nan = float("nan")
+    assert lead(nan, 0.5, 0.1, 0.2).startswith("Junction TOPO F1 is led by hdmapnet at 0.500 (")
+    assert lead(nan, nan) == "Junction TOPO F1: no model has a finite score, no lead to read"

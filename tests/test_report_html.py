@@ -30,12 +30,8 @@ from benchmark.report.style import STYLE
 from benchmark.report.writer import write_report
 from pipeline import io
 from pipeline.lane_graph import LaneGraph
+from tools.bench_report_html import CHROMIUM, DRIVER, chromium_installed, headless_chromium
 
-CHROMIUM, DRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
-# headless, and none of Chromium's own connections (updates, sync, first-run fetches): the page is all
-CHROMIUM_ARGUMENTS = ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                      "--window-size=1400,1000", "--disable-background-networking",
-                      "--disable-component-update", "--disable-sync", "--no-first-run")  # fmt: skip
 # a select's option by its text (the runs' options are numbered in the report's order)
 CHOOSE = "const choose = (s, text) => { s.value = [...s.options].find(o => o.text === text).value; };"
 
@@ -174,20 +170,12 @@ def test_thumbnails_are_each_frames_front_camera(made):
 
 @pytest.fixture(scope="module")
 def browser():
-    if not (CHROMIUM.is_file() and DRIVER.is_file()):
+    if not chromium_installed():
         missing = f"no Chromium at {CHROMIUM} and {DRIVER} (`make chromium` installs Debian's)"
         if os.environ.get("LANEGRAPH_BROWSER_REQUIRED") == "1":  # CI (.ci/run): it must run them
             pytest.fail(f"{missing}, and LANEGRAPH_BROWSER_REQUIRED=1")
         pytest.skip(missing)
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = str(CHROMIUM)
-    for argument in CHROMIUM_ARGUMENTS:
-        options.add_argument(argument)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
-    driver = webdriver.Chrome(service=Service(str(DRIVER)), options=options)
+    driver = headless_chromium(logs=True)
     yield driver
     driver.quit()
 
@@ -458,8 +446,9 @@ def test_green_is_half_or_more_unrounded():
     """An edge's share paired goes to the page floored to whole percent, so 49.5 % stays below 50 (red)."""
     from benchmark.report.browser import paired_percent
 
-    shares = np.array([0.0, 0.495, 0.4999, 0.5, 0.999, 1.0])
-    assert paired_percent(shares).tolist() == [0, 49, 49, 50, 99, 100]
+    shares = np.array([0.0, 0.495, 0.4999, 0.5, 0.999, 1.0, 57 / 100, 29 / 100, 7 / 25])
+    # 0.57 * 100 and 0.29 * 100 fall just below 57 and 29 in floats: still 57 and 29
+    assert paired_percent(shares).tolist() == [0, 49, 49, 50, 99, 100, 57, 29, 28]
 
 
 def test_keep_frames_drops_zero_gaps_and_perfect_frames(made):
@@ -525,7 +514,8 @@ def test_svg_drawn_in_the_style_sent(browser, made):
     """The SVG's stroke widths and arrow heads come from style.py's DrawingStyle (as cli viz's), and the
     page gets only what it draws with."""
     sent = page_data(made["report"].html)["style"]
-    assert "pieces" not in sent and sent == json.loads(json.dumps(STYLE.as_json()))
+    assert "pieces" not in sent and "arrow_mutation_scale" not in sent
+    assert sent == json.loads(json.dumps(STYLE.as_json()))
     open_report(browser, made["report"].html)
     browser.find_element("css selector", f'#frame-browser tr[data-frame="{made["val"][0]}"]').click()
     drawn = browser.execute_script(
@@ -560,7 +550,10 @@ def test_arrow_keys_only_step_a_chosen_frame_on_screen(browser, made):
     assert browser.execute_script(chosen) == here
     field = browser.find_element("css selector", "#frame-browser [name=junctions-max]")
     browser.execute_script("arguments[0].scrollIntoView();", field)
-    field.send_keys(Keys.ARROW_UP)
+    field.send_keys(Keys.ARROW_LEFT)  # moves the caret; the field's value (and so the list) is unchanged
+    assert browser.execute_script(chosen) == here
+    assert field.get_attribute("value") == ""
+    body.send_keys(Keys.ALT, Keys.ARROW_DOWN)  # with a modifier: the browser's own shortcut, not a step
     assert browser.execute_script(chosen) == here
     body.send_keys(Keys.ARROW_DOWN)  # on screen, a frame chosen: the next listed frame
     assert browser.execute_script(chosen) != here

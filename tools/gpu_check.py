@@ -295,13 +295,16 @@ def write_json(path: Path, value: dict) -> None:
 
 def junction_topo_lead(rows: list[dict]) -> str:
     """Which models have the highest Junction TOPO F1, as the table shows it (3 decimals): a tie reads as
-    a tie (a smoke run's models often all score 0), one model finished as no lead at all."""
-    shown = {row["model"]: f"{row['junction_topo']:.3f}" for row in rows}
+    a tie (a smoke run's models often all score 0), one model with a score as no lead at all."""
+    finite = [row for row in rows if math.isfinite(row["junction_topo"])]  # a diverged model's nan: no lead
+    shown = {row["model"]: f"{row['junction_topo']:.3f}" for row in finite}
+    if not shown:
+        return "Junction TOPO F1: no model has a finite score, no lead to read"
     best = max(shown.values(), key=float)
     leaders = [model for model, value in shown.items() if value == best]
-    if len(rows) == 1:
-        lead = f"Junction TOPO F1 {best}: {leaders[0]} alone finished, no lead to read"
-    elif len(leaders) == len(rows):
+    if len(shown) == 1:
+        lead = f"Junction TOPO F1 {best}: {leaders[0]} is the only model with a score, no lead to read"
+    elif len(leaders) == len(shown):
         lead = f"Junction TOPO F1 is level: {', '.join(leaders)} at {best}"
     elif len(leaders) > 1:
         lead = f"Junction TOPO F1 is led by {', '.join(leaders[:-1])} and {leaders[-1]}, level at {best}"

@@ -40,8 +40,10 @@ class DrawingStyle:
         return self.pieces[index % len(self.pieces)]
 
     def as_json(self) -> dict:
-        """What report.html's browser draws with: all but the piece colours (it colours by the matching)."""
-        return {key: value for key, value in asdict(self).items() if key != "pieces"}
+        """What report.html's browser draws with: all but the piece colours (it colours by the matching) and
+        matplotlib's arrow size."""
+        matplotlib_only = ("pieces", "arrow_mutation_scale")
+        return {key: value for key, value in asdict(self).items() if key not in matplotlib_only}
 
 
 STYLE = DrawingStyle()

@@ -73,7 +73,7 @@
   ];
   runs.forEach((run, r) => {
     columns.push({label: run.name + " dir TOPO F1", value: (i) => percent(data.scores[r].f1[i]), run: r});
-    // "none": the run scored the frame and it has no junction; "–": not scored, or neither graph has a vertex
+    // "none": the run scored the frame and it has no junction; "–": the run did not score the frame
     columns.push({label: run.name + " dir J-TOPO F1", value: (i) => percent(data.scores[r].jf1[i]), run: r,
                   none: (i) => (data.scores[r].scored[i] && F.junctions[i] === 0 ? "none" : "–")});
   });
@@ -403,6 +403,7 @@
     const tag = (event.target.tagName || "").toLowerCase();
     if (tag === "input" || tag === "select" || tag === "textarea") return;
     if (current < 0 || !onScreen()) return;
+    if (event.altKey || event.ctrlKey || event.metaKey || event.shiftKey) return;  // the browser's own (Alt+← back)
     if (event.key === "ArrowDown" || event.key === "ArrowRight") { step(1); event.preventDefault(); }
     if (event.key === "ArrowUp" || event.key === "ArrowLeft") { step(-1); event.preventDefault(); }
   });

@@ -485,12 +485,20 @@ def run_jobs(
     return run_local(todo, work, workers, lambda job: advance(job.n_frames))
 
 
-def append_errors(out: Path, errors: list[dict]) -> None:
-    """The records of the frames and logs that failed, added to out/errors.jsonl (atomically)."""
-    if errors:
-        previous = (out / ERRORS).read_text() if (out / ERRORS).is_file() else ""
-        lines = previous + "".join(json.dumps(e) + "\n" for e in errors)
-        io.write_atomic(out / ERRORS, lambda tmp: tmp.write_text(lines))
+def append_errors(out: Path, errors: list[dict], attempted: set[str]) -> None:
+    """The records of the frames and logs that failed, added to out/errors.jsonl (atomically), in place of
+    the earlier records of the logs this run prepared again (`attempted`): a log that failed as a whole is
+    tried again by the next run, and its error was recorded once per run before."""
+    path = out / ERRORS
+    previous = path.read_text().splitlines() if path.is_file() else []
+    kept = [line for line in previous if json.loads(line)["log"] not in attempted]
+    if len(kept) == len(previous) and not errors:
+        return
+    lines = "".join(line + "\n" for line in kept) + "".join(json.dumps(e) + "\n" for e in errors)
+    if lines:
+        io.write_atomic(path, lambda tmp: tmp.write_text(lines))
+    else:
+        path.unlink()
 
 
 def summarize(plan: Plan, todo: list[Job], results: list[LogResult], seconds: float, leakage: dict) -> dict:
@@ -649,7 +657,7 @@ def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, 
         results = run_jobs(todo, out, run.options, run.frame_stride, run.on_error, run.workers, run.executor,
                            run.address, advance)  # fmt: skip
     elapsed = time.perf_counter() - start
-    append_errors(out, [e for r in results for e in r.errors])
+    append_errors(out, [e for r in results for e in r.errors], {job.name for job in todo})
     leakage = measured_leakage(out, run)
     summary = summarize(plan, todo, results, elapsed, leakage)
     if run.dataset == "openlanev2":  # over the whole folder, as the leakage: what `cli train` refuses

@@ -45,7 +45,8 @@ def test_missing_map_file(root, tmp_path):
 
 def test_malformed_map_json_fails_cleanly_and_skip_goes_on(root, tmp_path):
     (path,) = (root / "train" / TRAIN_LOG / "map").glob("log_map_archive_*.json")
-    path.write_text(path.read_text()[:5000])
+    whole = path.read_text()
+    path.write_text(whole[:5000])
     out = tmp_path / "out"
     with pytest.raises(DataError) as error:
         run(root, out)
@@ -57,6 +58,12 @@ def test_malformed_map_json_fails_cleanly_and_skip_goes_on(root, tmp_path):
     assert summary["frames"] == 157 and summary["frames_skipped"] == 156
     lines = [json.loads(line) for line in (out / "errors.jsonl").read_text().splitlines()]
     assert len(lines) == 1 and lines[0]["log"] == TRAIN_LOG and path.name in lines[0]["error"]
+    # the failed log is tried again by the next run: its record is replaced, not added again
+    assert run(root, out, on_error="skip")["logs_prepared"] == 1
+    assert (out / "errors.jsonl").read_text().splitlines() == [json.dumps(lines[0])]
+    path.write_text(whole)  # mended: the log is prepared and errors.jsonl holds nothing of it
+    assert run(root, out, on_error="skip")["frames_skipped"] == 0
+    assert not (out / "errors.jsonl").exists()
 
 
 def test_missing_pose_file(root, tmp_path):

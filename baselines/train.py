@@ -418,6 +418,7 @@ class Tally:
     since_log: float = 0.0
     loss: float = float("nan")
     checkpoint_stall: list[float] = field(default_factory=list)
+    last_step: int = 0  # where this run ends (--stop-after: before the schedule's end), logged like the last
 
     def speed(self) -> float:
         return self.steps / self.seconds if self.seconds else 0.0
@@ -496,8 +497,8 @@ def stop_if_diverged(s: Setup, run: RunFolder, step: Step) -> None:
 def train_one_epoch(s: Setup, epoch: int, run: RunFolder, tally: Tally, bar: Progress, task,
                     skip_steps: int = 0, restore: dict | None = None) -> None:  # fmt: skip
     """One pass over the training split (from `skip_steps` in, `restore`: Setup.batches): a step per batch
-    (its losses averaged over the processes), the progress bar, a log line every train.log_every steps,
-    at the last step and at every skipped one, a checkpoint every train.checkpoint_every steps."""
+    (its losses averaged over the processes), the progress bar, a log line every train.log_every steps, at
+    the last and every skipped one, a checkpoint every train.checkpoint_every steps."""
     trainer, train_config = s.trainer, s.config.train
     trainer.model.train()
     s.sampler.set_epoch(epoch)
@@ -518,7 +519,8 @@ def train_one_epoch(s: Setup, epoch: int, run: RunFolder, tally: Tally, bar: Pro
         tally.steps += 1
         number = trainer.step
         # the losses are averaged over the processes (a collective) and read on logged steps only
-        if number % train_config.log_every == 0 or number == s.total_steps or not step.applied:
+        ends = number in (s.total_steps, tally.last_step)  # the schedule's or this run's last step
+        if number % train_config.log_every == 0 or ends or not step.applied:
             log_step(s, run, tally, epoch, step)
         bar.update(task, advance=1, epoch=epoch + 1, loss=tally.loss, speed=tally.speed() * batch_size)
         stop_if_diverged(s, run, step)
@@ -624,7 +626,7 @@ def run_epochs(s: Setup, run: RunFolder, validation: Validation | None, epochs: 
                restore: dict | None) -> Tally:  # fmt: skip
     """Train `epochs`, the first from `skip_steps` on with `restore` (a resume inside it); validate when
     due and save the checkpoint at every epoch's end."""
-    tally = Tally()
+    tally = Tally(last_step=min(epochs.stop * s.steps_per_epoch, s.total_steps))
     due = validation_epochs(s.config) if validation is not None else set()
     try:
         with progress_bar(run.master) as bar, progress.holding(bar):

@@ -199,6 +199,18 @@ def test_training_resumes_exactly(tmp_path):
     assert load_config(tmp_path / "straight" / "config.json") == config
 
 
+def test_a_run_stopped_before_its_first_log_line_logs_its_last_step(tmp_path):
+    """--stop-after 1 of 2 epochs with train.log_every past the epoch: the run's last step is logged, so its
+    loss is known (the summary's final_loss was nan and log.jsonl empty)."""
+    data = write_toy_dataset(tmp_path, frames=4)
+    config = toy_config("camera", epochs=2)
+    config.train.log_every = 10
+    summary = train(config, data, tmp_path / "run", stop_after=1)
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [2] and np.isfinite(summary["final_loss"])
+    assert summary["final_loss"] == log[0]["loss"]
+
+
 def _ddp_worker(rank: int, world_size: int, port: int, data: str, out: str) -> None:
     os.environ.update(
         {"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "WORLD_SIZE": str(world_size),

@@ -71,9 +71,13 @@ class Job:
         return self.split if self.frame_splits is None else self.frame_splits.get(timestamp_ns)
 
     @property
+    def splits(self) -> list[str]:
+        """The splits it writes a shard of."""
+        return sorted({self.split} if self.frame_splits is None else set(self.frame_splits.values()) - {None})
+
+    @property
     def shards(self) -> list[str]:
-        splits = {self.split} if self.frame_splits is None else set(self.frame_splits.values()) - {None}
-        return [f"{split}__{self.name}" for split in sorted(splits)]
+        return [f"{split}__{self.name}" for split in self.splits]
 
 
 @dataclass(frozen=True)
@@ -229,7 +233,8 @@ def prepare_log(
     except DataError as error:
         if on_error == "fail":
             raise
-        result.errors.append({"log": job.name, "frame_id": None, "source": error.source, "error": str(error)})
+        result.errors.append({"log": job.name, "splits": job.splits, "frame_id": None, "source": error.source,
+                              "error": str(error)})  # fmt: skip
         result.skipped = job.n_frames
         return result
     lane_map = LaneMap.from_lanes(log.lanes)
@@ -244,9 +249,8 @@ def prepare_log(
         except DataError as error:
             if on_error == "fail":
                 raise
-            result.errors.append(
-                {"log": job.name, "frame_id": frame.frame_id, "source": error.source, "error": str(error)}
-            )
+            result.errors.append({"log": job.name, "splits": [frame.split], "frame_id": frame.frame_id,
+                                  "source": error.source, "error": str(error)})  # fmt: skip
             result.skipped += 1
         if on_frame:
             on_frame()
@@ -485,20 +489,39 @@ def run_jobs(
     return run_local(todo, work, workers, lambda job: advance(job.n_frames))
 
 
-def append_errors(out: Path, errors: list[dict], attempted: set[str]) -> None:
-    """The records of the frames and logs that failed, added to out/errors.jsonl (atomically), in place of
-    the earlier records of the logs this run prepared again (`attempted`): a log that failed as a whole is
-    tried again by the next run, and its error was recorded once per run before."""
-    path = out / ERRORS
-    previous = path.read_text().splitlines() if path.is_file() else []
-    kept = [line for line in previous if json.loads(line)["log"] not in attempted]
-    if len(kept) == len(previous) and not errors:
+def earlier_errors(out: Path) -> list[dict]:
+    """out/errors.jsonl's records (read before any work, so that a damaged file is said in one line)."""
+    path, records = out / ERRORS, []
+    if not path.is_file():
+        return records
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        try:
+            record = json.loads(line) if line.strip() else None
+        except json.JSONDecodeError:
+            record = None
+        named = isinstance(record, dict) and isinstance(record.get("log"), str)
+        splits = record.get("splits", []) if named else None
+        named_splits = isinstance(splits, list) and all(isinstance(split, str) for split in splits)
+        if line.strip() and not (named and named_splits):
+            raise DataError(path, f"line {number}", 'not a JSON record naming its "log"; mend or delete it')
+        if record is not None:
+            records.append(record)
+    return records
+
+
+def write_errors(out: Path, earlier: list[dict], errors: list[dict], renewed: dict[str, set[str]]) -> None:
+    """out/errors.jsonl (atomically): the earlier records but those of the shards this run wrote again
+    (`renewed`: log -> splits; a log that failed as a whole is tried again by the next run, and its record
+    was added once per run), then this run's. Records of other splits of a log stay (a log may be prepared
+    one --split at a time), as do records from before 0.8.1, which name no split."""
+    kept = [e for e in earlier if not (e.get("splits") and set(e["splits"]) <= renewed.get(e["log"], set()))]
+    if len(kept) == len(earlier) and not errors:
         return
-    lines = "".join(line + "\n" for line in kept) + "".join(json.dumps(e) + "\n" for e in errors)
+    lines = "".join(json.dumps(e) + "\n" for e in kept + errors)
     if lines:
-        io.write_atomic(path, lambda tmp: tmp.write_text(lines))
+        io.write_atomic(out / ERRORS, lambda tmp: tmp.write_text(lines))
     else:
-        path.unlink()
+        (out / ERRORS).unlink()
 
 
 def summarize(plan: Plan, todo: list[Job], results: list[LogResult], seconds: float, leakage: dict) -> dict:
@@ -644,6 +667,7 @@ def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, 
     errors.jsonl, manifest.json and splits.png; returns the summary."""
     done = functools.partial(io.shard_done, out, tables=io.dataset_tables(run.dataset))
     todo = [job for job in plan.jobs if redo or not all(map(done, job.shards))]
+    earlier = earlier_errors(out)
     start = time.perf_counter()
     columns = [
         TextColumn("prepare {task.description}"),
@@ -657,7 +681,8 @@ def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, 
         results = run_jobs(todo, out, run.options, run.frame_stride, run.on_error, run.workers, run.executor,
                            run.address, advance)  # fmt: skip
     elapsed = time.perf_counter() - start
-    append_errors(out, [e for r in results for e in r.errors], {job.name for job in todo})
+    renewed = {job.name: set(job.splits) for job in todo}
+    write_errors(out, earlier, [e for r in results for e in r.errors], renewed)
     leakage = measured_leakage(out, run)
     summary = summarize(plan, todo, results, elapsed, leakage)
     if run.dataset == "openlanev2":  # over the whole folder, as the leakage: what `cli train` refuses

@@ -209,6 +209,10 @@ def test_a_run_stopped_before_its_first_log_line_logs_its_last_step(tmp_path):
     log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log] == [2] and np.isfinite(summary["final_loss"])
     assert summary["final_loss"] == log[0]["loss"]
+    config.train.log_every = 1  # logging reads the losses only: the same weights
+    train(config, data, tmp_path / "every", stop_after=1)
+    a, b = (torch.load(tmp_path / r / "checkpoint.pt", weights_only=True)["model"] for r in ("run", "every"))
+    assert all(torch.equal(a[name], b[name]) for name in a)
 
 
 def _ddp_worker(rank: int, world_size: int, port: int, data: str, out: str) -> None:

@@ -475,5 +475,5 @@ def test_a_subset_the_root_lacks_is_named_with_what_the_root_holds(tmp_path):
     segment(root, "00003", 1, split="val")
     with pytest.raises(ValueError) as caught:  # with --split: the count is of that split only
         run(root, tmp_path / "out", subset="B", split="val")
-    holds = "its split val holds subset A's 1 segment"
+    holds = "that split holds subset A's 1 segment"
     assert str(caught.value) == f"{root}: --subset B: no segment of subset B in split val here; {holds}"

@@ -189,3 +189,40 @@ def test_a_dataset_prepared_before_ground_z_is_refused_by_name(av2_root, tmp_pat
         run(av2_root, out, split="val")
     assert run(av2_root, out, split="val", overwrite=True)["frames"] == 157
     assert read_table(out, "frames")["ground_z"].null_count == 0
+
+
+def test_a_log_prepared_one_split_at_a_time_keeps_the_other_splits_records(root, tmp_path):
+    """Split files put the first half of the train log's frames in train and the rest in val; NaN poses
+    spoil a few train frames. Preparing --split val after --split train into the same OUT tries that log
+    again (its val shard) and must keep the records of its train frames (they were dropped by log name)."""
+    from pipeline.adapters.av2 import frame_timestamps
+
+    log_dir = root / "train" / TRAIN_LOG
+    path = log_dir / "city_SE3_egovehicle.feather"
+    poses = feather.read_table(path).to_pandas()
+    poses.loc[100:140, "tx_m"] = np.nan  # early frames: in the first half
+    feather.write_feather(pa.Table.from_pandas(poses, preserve_index=False), path)
+    times = frame_timestamps(log_dir).tolist()
+    half = len(times) // 2
+    for split, part in (("train", times[:half]), ("val", times[half:])):
+        (tmp_path / f"{split}.txt").write_text("".join(f"av2/{TRAIN_LOG}/{t}\n" for t in part))
+    files = {split: tmp_path / f"{split}.txt" for split in ("train", "val")}
+    out = tmp_path / "out"
+    skipped = run(root, out, split_files=files, split="train", on_error="skip")["frames_skipped"]
+    first = (out / "errors.jsonl").read_text().splitlines()
+    assert skipped >= 1 and len(first) == skipped
+    assert all(json.loads(line)["splits"] == ["train"] for line in first)
+    assert run(root, out, split_files=files, split="val", on_error="skip")["frames_skipped"] == 0
+    assert (out / "errors.jsonl").read_text().splitlines() == first
+
+
+def test_a_damaged_errors_jsonl_is_one_line_before_any_work(av2_root, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    damaged_files = ('{"log": "a"}\nnot json\n', '{"frame_id": null}\n', "null\n",
+                     '{"log": "a", "splits": "val"}\n')  # fmt: skip
+    for damaged in damaged_files:
+        (out / "errors.jsonl").write_text(damaged)
+        with pytest.raises(DataError, match=r'errors.jsonl: line \d: not a JSON record naming its "log"'):
+            run(av2_root, out, split="val", on_error="skip")
+        assert not (out / "frames").exists()

@@ -310,6 +310,8 @@ def junction_topo_lead(rows: list[dict]) -> str:
         lead = f"Junction TOPO F1 is led by {', '.join(leaders[:-1])} and {leaders[-1]}, level at {best}"
     else:
         lead = f"Junction TOPO F1 is led by {leaders[0]} at {best}"
+    unscored = [row["model"] for row in rows if row not in finite]
+    lead += f" ({', '.join(unscored)}: no finite score)" if unscored else ""
     return (f"{lead} (the paper's claim: LaneGAP leads; the report's summary says whether a lead is beyond "
             "the bootstrap interval)")  # fmt: skip
 

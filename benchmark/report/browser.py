@@ -339,8 +339,9 @@ def frame_drawing(task: FrameTask) -> str:
 
 def paired_percent(shares: np.ndarray) -> np.ndarray:
     """Shares paired in whole percent, rounded down: 50 or more exactly where half or more is paired (the
-    page's green), so 49.5 % stays red. A share is paired / all of an edge's points (n of them): 100 x share
-    is an integer or at least 1/n below one, so 1e-9 only undoes float error (0.57 x 100 = 56.99...)."""
+    page's green), so 49.5 % stays red. A share is a count over 2m (m: the edge's pieces, each end paired or
+    not): 100 x share is an integer or at least 1/(2m) below one, so 1e-9 only undoes float error (0.57 x 100
+    = 56.99...)."""
     return np.floor(100 * np.asarray(shares, np.float64) + 1e-9).astype(np.uint64)
 
 

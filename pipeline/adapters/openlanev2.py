@@ -126,7 +126,7 @@ def find_segments(
     if not found and of_other_subset:  # else a root without segments, refused as such by the caller
         other, plural = "B" if subset == "A" else "A", "s" * (of_other_subset > 1)
         in_split = f" in split {split}" if split else ""
-        holder = f"its split {split}" if split else "it"  # the count is of the split looked in
+        holder = "that split" if split else "it"  # the count is of the split looked in
         raise DataError(root, f"--subset {subset}", f"no segment of subset {subset}{in_split} here; {holder} "
                         f"holds subset {other}'s {of_other_subset} segment{plural}")  # fmt: skip
     return found

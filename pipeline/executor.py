@@ -44,17 +44,17 @@ def import_ray():
 
 def run_local(jobs: list, work: Callable, workers: int, on_done: Callable) -> list:
     """work(job) of every job, in job order: in this process (workers <= 1) or in a fork pool of `workers`
-    (its processes inherit what this one has loaded); on_done(job) as each log finishes."""
+    (its processes inherit what this one has loaded); on_done(job, its result) as each log finishes."""
     results = []
     if workers <= 1:
         for job in jobs:
             results.append(work(job))
-            on_done(job)
+            on_done(job, results[-1])
         return results
     with multiprocessing.get_context("fork").Pool(workers) as pool:
         for job, result in zip(jobs, pool.imap(work, jobs)):
             results.append(result)
-            on_done(job)
+            on_done(job, result)
     return results
 
 
@@ -69,9 +69,9 @@ def run_task(work: Callable, job):
 
 def run_ray(jobs: list, work: Callable, workers: int, address: str | None, on_done: Callable) -> list:
     """work(job) of every job (a picklable callable that does one log and writes its shards), results in
-    job order; on_done(job) as each log finishes. address: None starts a local instance with `workers`
-    CPUs, "auto" or HOST:PORT joins a running cluster (`ray start --head`). A Ray already initialised by
-    the caller is used as it is and left running."""
+    job order; on_done(job, its result) as each log finishes. address: None starts a local instance with
+    `workers` CPUs, "auto" or HOST:PORT joins a running cluster (`ray start --head`). A Ray already
+    initialised by the caller is used as it is and left running."""
     ray = import_ray()
     started = not ray.is_initialized()
     if started:  # "local": a new instance, even where a `ray start` cluster runs on this machine
@@ -90,7 +90,7 @@ def run_ray(jobs: list, work: Callable, workers: int, address: str | None, on_do
                 # local instance ends with them at shutdown; on a cluster they finish whole shards
                 raise DataError(*error)
             results[index[ref]] = result
-            on_done(jobs[index[ref]])
+            on_done(jobs[index[ref]], result)
         return results
     finally:
         if started:

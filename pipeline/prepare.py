@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import hashlib
-import json
 import resource
 import time
 from collections.abc import Callable
@@ -19,11 +18,11 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from pipeline import io
+from pipeline.error_records import ErrorRecords
 from pipeline.errors import DataError
 from pipeline.executor import import_ray, run_local, run_ray
 from pipeline.lane_graph import LaneMap
 from pipeline.manifest import (
-    ERRORS,
     MANIFEST,
     PICTURE,
     STAGE,
@@ -474,54 +473,24 @@ def manifest_parameters(
 
 def run_jobs(
     todo: list[Job], out: Path, options: TargetOptions, frame_stride: int, on_error: str, workers: int,
-    executor: str, address: str | None, advance: Callable,
+    executor: str, address: str | None, advance: Callable, on_log: Callable,
 ) -> list[LogResult]:  # fmt: skip
     """prepare_log of every job on the chosen executor (pipeline/executor.py), results in job order;
-    advance(n) moves the progress bar by n frames."""
+    advance(n) moves the progress bar by n frames, on_log(job, result) as each log is done."""
     work = functools.partial(
         prepare_log, out=out, options=options, frame_stride=frame_stride, on_error=on_error
     )
+
+    def done(job: Job, result: LogResult, frames: int) -> None:
+        advance(frames)
+        on_log(job, result)
+
     if executor == "ray":
-        return run_ray(todo, work, workers, address, lambda job: advance(job.n_frames))
+        return run_ray(todo, work, workers, address, lambda job, result: done(job, result, job.n_frames))
     if workers <= 1:  # in this process: the bar moves frame by frame
-        return run_local(todo, functools.partial(work, on_frame=advance), 1, lambda job: None)
+        return run_local(todo, functools.partial(work, on_frame=advance), 1, lambda j, r: done(j, r, 0))
     warm_up()  # fork: workers inherit the loaded nuScenes tables instead of reading them again
-    return run_local(todo, work, workers, lambda job: advance(job.n_frames))
-
-
-def earlier_errors(out: Path) -> list[dict]:
-    """out/errors.jsonl's records (read before any work, so that a damaged file is said in one line)."""
-    path, records = out / ERRORS, []
-    if not path.is_file():
-        return records
-    for number, line in enumerate(path.read_text().splitlines(), 1):
-        try:
-            record = json.loads(line) if line.strip() else None
-        except json.JSONDecodeError:
-            record = None
-        named = isinstance(record, dict) and isinstance(record.get("log"), str)
-        splits = record.get("splits", []) if named else None
-        named_splits = isinstance(splits, list) and all(isinstance(split, str) for split in splits)
-        if line.strip() and not (named and named_splits):
-            raise DataError(path, f"line {number}", 'not a JSON record naming its "log"; mend or delete it')
-        if record is not None:
-            records.append(record)
-    return records
-
-
-def write_errors(out: Path, earlier: list[dict], errors: list[dict], renewed: dict[str, set[str]]) -> None:
-    """out/errors.jsonl (atomically): the earlier records but those of the shards this run wrote again
-    (`renewed`: log -> splits; a log that failed as a whole is tried again by the next run, and its record
-    was added once per run), then this run's. Records of other splits of a log stay (a log may be prepared
-    one --split at a time), as do records from before 0.8.1, which name no split."""
-    kept = [e for e in earlier if not (e.get("splits") and set(e["splits"]) <= renewed.get(e["log"], set()))]
-    if len(kept) == len(earlier) and not errors:
-        return
-    lines = "".join(json.dumps(e) + "\n" for e in kept + errors)
-    if lines:
-        io.write_atomic(out / ERRORS, lambda tmp: tmp.write_text(lines))
-    else:
-        (out / ERRORS).unlink()
+    return run_local(todo, work, workers, lambda job, result: done(job, result, job.n_frames))
 
 
 def summarize(plan: Plan, todo: list[Job], results: list[LogResult], seconds: float, leakage: dict) -> dict:
@@ -667,7 +636,7 @@ def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, 
     errors.jsonl, manifest.json and splits.png; returns the summary."""
     done = functools.partial(io.shard_done, out, tables=io.dataset_tables(run.dataset))
     todo = [job for job in plan.jobs if redo or not all(map(done, job.shards))]
-    earlier = earlier_errors(out)
+    records = ErrorRecords(out)
     start = time.perf_counter()
     columns = [
         TextColumn("prepare {task.description}"),
@@ -678,11 +647,11 @@ def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, 
     with Progress(*columns, console=console, transient=False) as progress:
         task = progress.add_task(f"{run.dataset} frames", total=sum(j.n_frames for j in todo))
         advance = functools.partial(progress.advance, task)
+        logged = lambda job, result: records.log_done(job.name, job.splits, result.errors)  # noqa: E731
         results = run_jobs(todo, out, run.options, run.frame_stride, run.on_error, run.workers, run.executor,
-                           run.address, advance)  # fmt: skip
+                           run.address, advance, logged)  # fmt: skip
     elapsed = time.perf_counter() - start
-    renewed = {job.name: set(job.splits) for job in todo}
-    write_errors(out, earlier, [e for r in results for e in r.errors], renewed)
+    records.finish([job.name for job in todo])
     leakage = measured_leakage(out, run)
     summary = summarize(plan, todo, results, elapsed, leakage)
     if run.dataset == "openlanev2":  # over the whole folder, as the leakage: what `cli train` refuses

@@ -226,3 +226,35 @@ def test_a_damaged_errors_jsonl_is_one_line_before_any_work(av2_root, tmp_path):
         with pytest.raises(DataError, match=r'errors.jsonl: line \d: not a JSON record naming its "log"'):
             run(av2_root, out, split="val", on_error="skip")
         assert not (out / "frames").exists()
+
+
+def test_an_interrupted_run_keeps_the_records_of_the_logs_it_finished(root, tmp_path, monkeypatch):
+    """NaN poses spoil frames of both logs; the run is interrupted as the second log starts. The first log's
+    shards are done (the next run does not prepare it again), so its records must be in errors.jsonl already
+    (they were written at the run's end only, and lost)."""
+    import pipeline.prepare as prepare_module
+
+    for log_dir in (root / "train" / TRAIN_LOG, root / "val" / VAL_LOG):
+        path = log_dir / "city_SE3_egovehicle.feather"
+        poses = feather.read_table(path).to_pandas()
+        poses.loc[100:140, "tx_m"] = np.nan
+        feather.write_feather(pa.Table.from_pandas(poses, preserve_index=False), path)
+    real, started = prepare_module.prepare_log, []
+
+    def interrupted(job, *args, **kw):
+        started.append(job.name)
+        if len(started) == 2:
+            raise KeyboardInterrupt
+        return real(job, *args, **kw)
+
+    out = tmp_path / "out"
+    monkeypatch.setattr(prepare_module, "prepare_log", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run(root, out, on_error="skip")
+    first = [json.loads(line) for line in (out / "errors.jsonl").read_text().splitlines()]
+    assert first and {record["log"] for record in first} == {started[0]}
+    monkeypatch.undo()
+    summary = run(root, out, on_error="skip")
+    assert summary["logs_prepared"] == 1 and summary["frames_skipped"] >= 1
+    every = [json.loads(line) for line in (out / "errors.jsonl").read_text().splitlines()]
+    assert every[: len(first)] == first and {record["log"] for record in every} == {TRAIN_LOG, VAL_LOG}

@@ -86,7 +86,7 @@ def synth(
             nuscenes_map.write_map(nuscenes_root, built[k], built[k].nuscenes_map, priors[k])
             progress.advance()
         write = functools.partial(_write_log, built, av2_root, nuscenes_root, openlanev2_root, sensors)
-        run_local(plans, write, min(workers, len(plans)), lambda plan: progress.advance())
+        run_local(plans, write, min(workers, len(plans)), lambda plan, _: progress.advance())
         nuscenes_writer.write_tables(nuscenes_root, built, plans, channels, priors)
         progress.advance()
     summary["complete"] = True

@@ -16,7 +16,11 @@ def earlier_errors(out: Path) -> list[dict]:
     path, records = out / ERRORS, []
     if not path.is_file():
         return records
-    for number, line in enumerate(path.read_text().splitlines(), 1):
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise DataError(path, "text", f"is not UTF-8 ({error.reason}); mend or delete it") from error
+    for number, line in enumerate(text.splitlines(), 1):
         try:
             record = json.loads(line) if line.strip() else None
         except json.JSONDecodeError:
@@ -33,36 +37,49 @@ def earlier_errors(out: Path) -> list[dict]:
 
 class ErrorRecords:
     """out/errors.jsonl, written (atomically) as each log is done, so that an interrupted run keeps the
-    records of the logs whose shards it finished: the earlier records but those of the shards this run
-    wrote again (a log that failed as a whole is tried again by the next run, and its record was added once
-    per run), then this run's. Records of other splits of a log stay (a log may be prepared one --split at a
-    time), as do records from before 0.8.1, which name no split."""
+    records of the logs whose shards it finished, and in job order at the end: the earlier records (read
+    before any work) less the splits whose shards this run wrote again (a log that failed as a whole is
+    tried again by the next run, and its record was added once per run), then this run's. Records of other
+    splits of a log stay (a log may be prepared one --split at a time), as do records from before 0.8.1,
+    which name no split. The file is rewritten only when a log brings records or narrows earlier ones."""
 
-    def __init__(self, out: Path):
-        self.out, self.earlier = out, earlier_errors(out)  # before any work: a damaged file is one line
+    def __init__(self, out: Path, earlier: list[dict]):
+        self.out, self.earlier = out, earlier
         self.renewed: dict[str, set[str]] = {}  # log -> the splits of its shards written again
         self.done: dict[str, list[dict]] = {}  # log -> its records
+        self.written = (out / ERRORS).read_text(encoding="utf-8") if (out / ERRORS).is_file() else ""
 
     def log_done(self, log: str, splits: list[str], errors: list[dict]) -> None:
         """A log's shards of `splits` are written, with these records."""
         self.renewed.setdefault(log, set()).update(splits)
         self.done[log] = errors
-        self.write([e for records in self.done.values() for e in records])
+        if errors or any(record["log"] == log and record.get("splits") for record in self.earlier):
+            self.write([e for records in self.done.values() for e in records])
 
     def finish(self, logs: list[str]) -> None:
         """The file in the logs' order (the executors finish logs in any order)."""
         self.write([e for log in logs for e in self.done.get(log, [])])
 
-    def renewed_record(self, record: dict) -> bool:
-        return bool(record.get("splits")) and set(record["splits"]) <= self.renewed.get(record["log"], set())
+    def kept(self) -> list[dict]:
+        """The earlier records, each less the splits written again (gone when none is left)."""
+        kept = []
+        for record in self.earlier:
+            if not record.get("splits"):
+                kept.append(record)
+                continue
+            renewed = self.renewed.get(record["log"], set())
+            left = [split for split in record["splits"] if split not in renewed]
+            if left:
+                kept.append({**record, "splits": left})
+        return kept
 
     def write(self, errors: list[dict]) -> None:
-        kept = [record for record in self.earlier if not self.renewed_record(record)]
         path = self.out / ERRORS
-        lines = "".join(json.dumps(e) + "\n" for e in kept + errors)
-        if lines == (path.read_text() if path.is_file() else ""):
+        lines = "".join(json.dumps(e) + "\n" for e in self.kept() + errors)
+        if lines == self.written:
             return
         if lines:
-            io.write_atomic(path, lambda tmp: tmp.write_text(lines))
+            io.write_atomic(path, lambda tmp: tmp.write_text(lines, encoding="utf-8"))
         else:
             path.unlink()
+        self.written = lines

@@ -6,8 +6,8 @@ running cluster.
 Each task runs the work it is given for one log (`cli prepare`: `prepare_log`), which writes the log's
 shards itself, exactly as the local executor does, so the shards are the same bytes; `root` and `out`
 must be on a filesystem that every node sees, and every node needs this package installed (the same as
-the driver's). Results come back in job order, so errors.jsonl and the manifest are the same as a local
-run's. Ray enables token authentication for the
+the driver's). Results come back in job order (on_done as each log finishes), so errors.jsonl and the
+manifest are the same as a local run's. Ray enables token authentication for the
 clusters it starts; a driver joining one by HOST:PORT (not "auto") sends the token only with
 RAY_AUTH_MODE=token set (Ray's rule: an explicit address never turns it on by itself).
 
@@ -21,6 +21,7 @@ numpy buffers only); per-worker loading pays that once per process.
 
 from __future__ import annotations
 
+import functools
 import logging
 import multiprocessing
 from collections.abc import Callable
@@ -43,19 +44,27 @@ def import_ray():
 
 
 def run_local(jobs: list, work: Callable, workers: int, on_done: Callable) -> list:
-    """work(job) of every job, in job order: in this process (workers <= 1) or in a fork pool of `workers`
-    (its processes inherit what this one has loaded); on_done(job, its result) as each log finishes."""
+    """work(job) of every job, results in job order: in this process (workers <= 1) or in a fork pool of
+    `workers` (its processes inherit what this one has loaded); on_done(job, its result) as each finishes."""
     results = []
     if workers <= 1:
         for job in jobs:
             results.append(work(job))
             on_done(job, results[-1])
         return results
+    results = [None] * len(jobs)
     with multiprocessing.get_context("fork").Pool(workers) as pool:
-        for job, result in zip(jobs, pool.imap(work, jobs)):
-            results.append(result)
-            on_done(job, result)
+        # as each finishes (imap's job order would hold a finished log's on_done back behind a slow one)
+        for i, result in pool.imap_unordered(functools.partial(numbered, work), enumerate(jobs)):
+            results[i] = result
+            on_done(jobs[i], result)
     return results
+
+
+def numbered(work: Callable, item: tuple) -> tuple:
+    """(i, work(job)) of a pool's (i, job)."""
+    i, job = item
+    return i, work(job)
 
 
 def run_task(work: Callable, job):

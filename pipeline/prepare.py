@@ -18,7 +18,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from pipeline import io
-from pipeline.error_records import ErrorRecords
+from pipeline.error_records import ErrorRecords, earlier_errors
 from pipeline.errors import DataError
 from pipeline.executor import import_ray, run_local, run_ray
 from pipeline.lane_graph import LaneMap
@@ -585,18 +585,19 @@ def prepare(
     if not overwrite:
         check_no_interrupted_overwrite(out)
     check_manifest(out, dataset, root, version, parameters, overwrite)
+    earlier = [] if overwrite else earlier_errors(out)  # before any work: a damaged file is one line
     plan = plan_jobs(dataset, root, version, split, frame_stride, splits, source)
     run = Run(dataset, root, version, split, options, frame_stride, on_error, workers, executor, address,
               source)  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     if not overwrite:
-        return write_output(out, plan, splits, parameters, run, redo=False)
+        return write_output(out, plan, splits, parameters, run, ErrorRecords(out, earlier))
     said = recover_overwrite(out)  # what an interrupted --overwrite run left
     if said:
         console.print(said, soft_wrap=True)
     stage = out / STAGE
     try:
-        summary = write_output(stage, plan, splits, parameters, run, redo=True)
+        summary = write_output(stage, plan, splits, parameters, run, ErrorRecords(stage, []), redo=True)
         move_in(stage, out)
     except BaseException:  # failed or interrupted at any step: the earlier output is put back whole
         with contextlib.suppress(OSError):  # else the next run puts it right, or names the folder left
@@ -631,12 +632,12 @@ def measured_leakage(out: Path, run: Run) -> dict:
     return read_and_measure(out, run.options.bev_range)
 
 
-def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, run: Run, redo: bool) -> dict:
+def write_output(out: Path, plan: Plan, splits: SplitOptions, parameters: dict, run: Run,
+                 records: ErrorRecords, redo: bool = False) -> dict:  # fmt: skip
     """Prepare the plan's logs into out (those not already done there, or all with `redo`), then its
     errors.jsonl, manifest.json and splits.png; returns the summary."""
     done = functools.partial(io.shard_done, out, tables=io.dataset_tables(run.dataset))
     todo = [job for job in plan.jobs if redo or not all(map(done, job.shards))]
-    records = ErrorRecords(out)
     start = time.perf_counter()
     columns = [
         TextColumn("prepare {task.description}"),

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -14,7 +16,7 @@ import pytest
 
 from pipeline.errors import DataError
 from pipeline.io import read_table
-from pipeline.prepare import prepare
+from pipeline.prepare import prepare, prepare_log
 from pipeline.targets import TargetOptions
 
 TRAIN_LOG = "adcf7d18-0510-35b0-a2fa-b4cea13a6d76"
@@ -258,3 +260,46 @@ def test_an_interrupted_run_keeps_the_records_of_the_logs_it_finished(root, tmp_
     assert summary["logs_prepared"] == 1 and summary["frames_skipped"] >= 1
     every = [json.loads(line) for line in (out / "errors.jsonl").read_text().splitlines()]
     assert every[: len(first)] == first and {record["log"] for record in every} == {TRAIN_LOG, VAL_LOG}
+    assert sum(record["log"] == started[0] for record in every) == len(first)  # not recorded twice
+
+
+def slow_train_log(job, *args, **kw):
+    """prepare_log, but the train log waits (in its worker) for errors.jsonl in `out`, then breaks."""
+    if job.name != TRAIN_LOG:
+        return prepare_log(job, *args, **kw)
+    for _ in range(600):
+        if (kw["out"] / "errors.jsonl").is_file():
+            break
+        time.sleep(0.1)
+    raise RuntimeError("the train log broke")
+
+
+def test_under_workers_a_log_is_recorded_as_it_finishes(root, tmp_path, monkeypatch):
+    """--workers 2: the val log finishes while the train log (first in job order) is still running, then the
+    train log fails with an unexpected error. The val log's shards are done, so its records must be written
+    already (a pool's results in job order held them behind the train log, and they were lost)."""
+    import pipeline.prepare as prepare_module
+
+    path = root / "val" / VAL_LOG / "city_SE3_egovehicle.feather"
+    poses = feather.read_table(path).to_pandas()
+    poses.loc[100:140, "tx_m"] = np.nan
+    feather.write_feather(pa.Table.from_pandas(poses, preserve_index=False), path)
+    out = tmp_path / "out"
+    monkeypatch.setattr(prepare_module, "prepare_log", slow_train_log)
+    with pytest.raises(RuntimeError, match="the train log broke"):
+        run(root, out, on_error="skip", workers=2)
+    records = [json.loads(line) for line in (out / "errors.jsonl").read_text().splitlines()]
+    assert records and {record["log"] for record in records} == {VAL_LOG}
+
+
+def test_a_record_of_two_splits_is_narrowed_as_each_is_prepared_again():
+    """A log that failed as a whole over train and val, then prepared --split val: the record stays for train
+    only (it stayed whole, and a failing val was then listed twice)."""
+    from pipeline.error_records import ErrorRecords
+
+    whole = {"log": "a", "splits": ["train", "val"], "frame_id": None, "source": "s", "error": "e"}
+    records = ErrorRecords(Path("/nonexistent"), [whole])
+    records.renewed["a"] = {"val"}
+    assert records.kept() == [{**whole, "splits": ["train"]}]
+    records.renewed["a"] = {"val", "train"}
+    assert records.kept() == []

@@ -19,14 +19,21 @@ from pipeline.records import AnnotatedLanes
 from pipeline.targets import TargetOptions
 
 
-def test_a_range_spelt_otherwise_is_recorded_and_reported_as_the_same(tmp_path):
+def prepared_with_submission(tmp_path: Path, bev_range: str) -> Path:
+    """One OpenLane-V2 segment prepared at `bev_range` into tmp_path/data, and tmp_path/submission.pkl
+    holding its annotated lanes."""
     root, data = tmp_path / "olv2", tmp_path / "data"
     segment(root, "seg-b", 2, "val")
-    prepare("openlanev2", root, data, TargetOptions(Range.parse("50x100")))
+    prepare("openlanev2", root, data, TargetOptions(Range.parse(bev_range)))
     keys, annotated = read_openlanev2_keys(data), read_annotated_lanes(data)
     frames = {keys[f]: AnnotatedLanes(lanes.points, lanes.links, lanes.ids, [0.9] * len(lanes))
               for f, lanes in annotated.items()}  # fmt: skip
     write_submission(tmp_path / "submission.pkl", "mine", frames)
+    return data
+
+
+def test_a_range_spelt_otherwise_is_recorded_and_reported_as_the_same(tmp_path):
+    data = prepared_with_submission(tmp_path, "50x100")
     run = tmp_path / "runs" / "typed"
     score(tmp_path / "submission.pkl", data, out=run, bev_range="50.0X100")
     metrics = json.loads((run / "metrics.json").read_text())
@@ -44,13 +51,7 @@ def test_a_range_wider_than_the_prepared_crop_is_refused(tmp_path):
     count a perfect prediction's lanes there as false (the ground truth's own lanes scored TOPO F1 0.74)."""
     import pytest
 
-    root, data = tmp_path / "olv2", tmp_path / "data"
-    segment(root, "seg-b", 2, "val")
-    prepare("openlanev2", root, data, TargetOptions(Range.parse("30x60")))
-    keys, annotated = read_openlanev2_keys(data), read_annotated_lanes(data)
-    frames = {keys[f]: AnnotatedLanes(lanes.points, lanes.links, lanes.ids, [0.9] * len(lanes))
-              for f, lanes in annotated.items()}  # fmt: skip
-    write_submission(tmp_path / "submission.pkl", "mine", frames)
+    data = prepared_with_submission(tmp_path, "30x60")
     with pytest.raises(ValueError, match=r"--range 50x100: wider than the ground truth .* prepared at 30x60"):
         score(tmp_path / "submission.pkl", data, bev_range="50x100", bootstrap=0)
     narrower = score(tmp_path / "submission.pkl", data, bev_range="20x40", bootstrap=0)

@@ -196,26 +196,23 @@ class PostProcess:
         self.encoder, self.head = config.encoder, config.decoder
 
     def __call__(self, outputs: dict[str, torch.Tensor]) -> list[LaneGraph]:
-        probability = lane_probability(outputs)
-        graphs = []
-        for frame, (_, points) in enumerate(select_paths(outputs, self.head.score_threshold)):
-            paths = [self.encoder.polyline_to_metres(p.numpy()) for p in points]
-            if probability is not None:
-                paths = snap_polylines(paths, probability[frame], self.encoder, self.head.snap_radius)
-            graphs.append(path2graph(paths))
-        return graphs
+        return [path2graph(paths) for _, paths in self.frame_paths(outputs)]
 
     def scored(self, outputs: dict[str, torch.Tensor]) -> list[tuple[LaneGraph, np.ndarray]]:
         """Per frame (the graph `__call__` gives, each edge's score): the highest score among the paths
         that give it (path2graph_scored)."""
+        return [path2graph_scored(paths, scores.numpy()) for scores, paths in self.frame_paths(outputs)]
+
+    def frame_paths(self, outputs: dict[str, torch.Tensor]) -> list[tuple[torch.Tensor, list[np.ndarray]]]:
+        """Per frame, the kept paths' scores and polylines in metres (snapped to the lane head's mask)."""
         probability = lane_probability(outputs)
-        scored = []
+        frames = []
         for frame, (scores, points) in enumerate(select_paths(outputs, self.head.score_threshold)):
             paths = [self.encoder.polyline_to_metres(p.numpy()) for p in points]
             if probability is not None:
                 paths = snap_polylines(paths, probability[frame], self.encoder, self.head.snap_radius)
-            scored.append(path2graph_scored(paths, scores.numpy()))
-        return scored
+            frames.append((scores, paths))
+        return frames
 
 
 def build(config: Config) -> Built:
